@@ -1,0 +1,41 @@
+"""Shared fixtures: the location of the real benchmark scenes."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import pytest
+
+REPO_ROOT = Path(__file__).resolve().parents[1]
+
+
+def shared_data_dir() -> Path:
+    """``$SENERF_DATA`` if set, else ``../shared/data`` beside the repository."""
+    env = os.environ.get("SENERF_DATA")
+    return Path(env) if env else REPO_ROOT.parent / "shared" / "data"
+
+
+@pytest.fixture(scope="session")
+def shared_data() -> Path:
+    """The real benchmark scenes folder; skips the test when it is absent."""
+    path = shared_data_dir()
+    if not path.is_dir():
+        pytest.skip(f"real benchmark data not found at {path} (set SENERF_DATA to run this test)")
+    return path
+
+
+@pytest.fixture(scope="session")
+def lego_dir(shared_data: Path) -> Path:
+    path = shared_data / "nerf_synthetic" / "lego"
+    if not path.is_dir():
+        pytest.skip(f"lego scene not found at {path}")
+    return path
+
+
+@pytest.fixture(scope="session")
+def fern_dir(shared_data: Path) -> Path:
+    path = shared_data / "nerf_llff_data" / "fern"
+    if not path.is_dir():
+        pytest.skip(f"fern scene not found at {path}")
+    return path
