@@ -1,0 +1,35 @@
+"""Scene loading, few-shot protocols and input validation (NumPy + imageio + OpenCV; never imports torch).
+
+Public API::
+
+    Scene                                   frozen dataclass (images, OpenCV c2w, intrinsics, splits, bounds)
+    load_scene(path, downscale=1, background=None) -> Scene      auto-detects Blender / ngp / LLFF
+    fewshot_split(scene, protocol, views=None, n_views=None, seed=0) -> (train_idx, test_idx)
+    load_blender, load_ngp, load_llff       the per-format loaders (load_llff takes bd_factor, recenter)
+    detect_format(path) -> 'blender' | 'ngp' | 'llff'
+    EXTREME_VIEWS, INFONERF4_VIEWS, PROTOCOLS
+
+Every problem with user input raises :class:`senerf.errors.InputError` naming the file and the field.
+See :mod:`senerf.data.load` (detection, downscaling), :mod:`senerf.data.blender`, :mod:`senerf.data.llff`
+(normalisation) and :mod:`senerf.data.fewshot` (protocols) for the documented choices.
+"""
+
+from .blender import load_blender, load_ngp
+from .fewshot import EXTREME_VIEWS, INFONERF4_VIEWS, PROTOCOLS, fewshot_split
+from .llff import load_llff, recenter_poses
+from .load import detect_format, load_scene
+from .scene import Scene
+
+__all__ = [
+    "Scene",
+    "load_scene",
+    "detect_format",
+    "load_blender",
+    "load_ngp",
+    "load_llff",
+    "recenter_poses",
+    "fewshot_split",
+    "EXTREME_VIEWS",
+    "INFONERF4_VIEWS",
+    "PROTOCOLS",
+]

@@ -1,0 +1,177 @@
+"""Few-shot protocols: which views train and which views test (REFERENCE section 5).
+
+``fewshot_split(scene, protocol, views=None, n_views=None, seed=0) -> (train_idx, test_idx)``; both are
+int64 arrays of indices into the scene's arrays (``scene.rgb``, ``scene.c2w``), train in protocol order.
+
+=============  =======================================================================================
+protocol       train / test
+=============  =======================================================================================
+``extreme``    NeRF Synthetic Extreme: 3 per-scene views (:data:`EXTREME_VIEWS`, looked up by the scene
+               name = folder name, case-insensitive) as indices *into the train split*; ``views``
+               replaces the table (then any scene name works).  Test: the whole test split.
+``infonerf4``  InfoNeRF's 4 views ``[26, 86, 2, 55]`` into the train split.  Test: the test split.
+``random8``    ``n_views`` (default 8) distinct train-split views drawn with
+               ``np.random.default_rng(seed).choice(n_train, n_views, replace=False)`` (kept in draw
+               order).  Test: the test split.
+``llff``       Over *all* images: test = every 8th (``index % 8 == 0``); train =
+               ``rest[round(linspace(0, n_rest - 1, n_views))]`` with ``n_views`` default 3 (rounding half
+               to even, ``np.round``).
+``views``      Explicit ``views``.  Split scenes (kind ``'object'`` with a non-empty ``'val'`` or
+               ``'test'`` split: Blender, or nerfstudio files with split lists): indices into the train
+               split, test = test split.  LLFF and ngp files without splits: indices into *all* images;
+               test = the scene's test split minus the training views, or, when that is empty, every
+               image not used for training.
+``all``        The whole train split; test = the test split (empty for an ngp file without splits).
+=============  =======================================================================================
+
+Errors are :class:`senerf.errors.InputError` naming the command-line field (``--views``,
+``--n-views``, ``--protocol``): unknown protocol or scene, out-of-range or duplicate view index, too many
+views, an empty test set where the protocol needs one.
+"""
+
+from __future__ import annotations
+
+import numbers
+
+import numpy as np
+
+from ..errors import InputError
+from .llff import LLFF_HOLDOUT
+from .scene import Scene
+
+__all__ = ["fewshot_split", "PROTOCOLS", "EXTREME_VIEWS", "INFONERF4_VIEWS", "LLFF_HOLDOUT"]
+
+#: NeRF Synthetic Extreme (3 views, indices into the train split), REFERENCE section 5.
+EXTREME_VIEWS = {
+    "chair": (26, 31, 32),
+    "drums": (3, 9, 14),
+    "ficus": (12, 36, 56),
+    "hotdog": (31, 33, 48),
+    "lego": (0, 1, 51),
+    "materials": (47, 63, 73),
+    "ship": (36, 55, 66),
+    "mic": (35, 65, 82),
+}
+#: InfoNeRF's NeRF Synthetic 4-view protocol (indices into the train split).
+INFONERF4_VIEWS = (26, 86, 2, 55)
+PROTOCOLS = ("extreme", "infonerf4", "random8", "llff", "views", "all")
+
+
+def _as_view_list(views, n: int, what: str) -> np.ndarray:
+    """Validate ``views`` (ints, distinct, in ``[0, n)``) -> int64 array; ``InputError`` on ``--views``."""
+    if isinstance(views, (str, bytes)) or not hasattr(views, "__iter__"):
+        raise InputError(f"expected a list of view indices, got {views!r}", field="--views")
+    out = []
+    for v in views:
+        if isinstance(v, (bool, np.bool_)) or not isinstance(v, numbers.Integral):
+            raise InputError(f"view index {v!r} is not an integer", field="--views")
+        v = int(v)
+        if not 0 <= v < n:
+            raise InputError(f"view index {v} out of range [0, {n}) ({what})", field="--views")
+        if v in out:
+            raise InputError(f"duplicate view index {v}", field="--views")
+        out.append(v)
+    if not out:
+        raise InputError("empty view list", field="--views")
+    return np.asarray(out, np.int64)
+
+
+def _n_views(n_views, default: int, n_max: int, what: str) -> int:
+    if n_views is None:
+        n_views = default
+    if isinstance(n_views, (bool, np.bool_)) or not isinstance(n_views, numbers.Integral):
+        raise InputError(f"expected an integer, got {n_views!r}", field="--n-views")
+    if not 1 <= int(n_views) <= n_max:
+        raise InputError(f"must be in [1, {n_max}] ({what}), got {n_views}", field="--n-views")
+    return int(n_views)
+
+
+def _test_split(scene: Scene, protocol: str) -> np.ndarray:
+    test = scene.splits["test"]
+    if test.size == 0:
+        raise InputError(
+            f"scene {scene.name!r} has no test split; use protocol 'llff' or 'views'", field="--protocol"
+        )
+    return test
+
+
+def _is_split_scene(scene: Scene) -> bool:
+    """Blender-style: views index the train split (an object scene with a val or test split)."""
+    return scene.kind == "object" and (scene.splits["val"].size > 0 or scene.splits["test"].size > 0)
+
+
+def fewshot_split(scene: Scene, protocol: str = "extreme", views=None, n_views=None, seed: int = 0):
+    """Training and test view indices of a few-shot protocol (see the module docstring for each one).
+
+    Args:
+        scene: a loaded :class:`Scene`.
+        protocol: one of :data:`PROTOCOLS`.
+        views: explicit view indices (``'views'``; overrides the table for ``'extreme'``).
+        n_views: number of training views (``'llff'``: default 3; ``'random8'``: default 8).
+        seed: seed of ``'random8'``.
+
+    Returns:
+        ``(train_idx, test_idx)``: int64 arrays of indices into the scene's arrays; disjoint.
+
+    Raises:
+        InputError: naming ``--protocol``, ``--views`` or ``--n-views``.
+    """
+    if protocol not in PROTOCOLS:
+        raise InputError(f"unknown protocol {protocol!r}; expected one of {', '.join(PROTOCOLS)}",
+                         field="--protocol")
+    if views is not None and protocol not in ("extreme", "views"):
+        raise InputError(f"explicit views are not used by protocol {protocol!r} (use 'views')", field="--views")
+    if n_views is not None and protocol not in ("llff", "random8"):
+        raise InputError(f"not used by protocol {protocol!r} (only 'llff' and 'random8')", field="--n-views")
+    train_split = scene.splits["train"]
+    n_train = int(train_split.size)
+
+    if protocol == "extreme":
+        if views is None:
+            key = scene.name.lower()
+            if key not in EXTREME_VIEWS:
+                raise InputError(
+                    f"no Extreme views known for scene {scene.name!r} (known: {', '.join(sorted(EXTREME_VIEWS))}); "
+                    "pass views explicitly",
+                    field="--views",
+                )
+            views = EXTREME_VIEWS[key]
+        train = train_split[_as_view_list(views, n_train, "indices into the train split")]
+        return train, _test_split(scene, protocol)
+    if protocol == "infonerf4":
+        train = train_split[_as_view_list(INFONERF4_VIEWS, n_train, "indices into the train split")]
+        return train, _test_split(scene, protocol)
+    if protocol == "random8":
+        k = _n_views(n_views, 8, n_train, "train-split views")
+        rng = np.random.default_rng(seed)
+        pick = rng.choice(n_train, size=k, replace=False)
+        return train_split[np.asarray(pick, np.int64)], _test_split(scene, protocol)
+    if protocol == "all":
+        if n_train == 0:
+            raise InputError(f"scene {scene.name!r} has an empty train split", field="--protocol")
+        return train_split.copy(), scene.splits["test"].copy()
+
+    n = scene.n_images
+    idx = np.arange(n, dtype=np.int64)
+    if protocol == "llff":
+        test = idx[idx % LLFF_HOLDOUT == 0]
+        rest = idx[idx % LLFF_HOLDOUT != 0]
+        if rest.size == 0:
+            raise InputError(f"scene {scene.name!r} has too few images ({n}) for the LLFF hold-out", field="--protocol")
+        k = _n_views(n_views, 3, int(rest.size), "non-held-out images")
+        pick = np.round(np.linspace(0, rest.size - 1, k)).astype(np.int64)
+        return rest[pick], test
+
+    # protocol == "views"
+    if views is None:
+        raise InputError("protocol 'views' needs explicit view indices", field="--views")
+    if _is_split_scene(scene):
+        train = train_split[_as_view_list(views, n_train, "indices into the train split")]
+        return train, _test_split(scene, protocol)
+    train = _as_view_list(views, n, "indices into all images")
+    test = np.setdiff1d(scene.splits["test"], train)
+    if test.size == 0:
+        test = np.setdiff1d(idx, train)
+    if test.size == 0:
+        raise InputError("every image is a training view; nothing left to test on", field="--views")
+    return train, test

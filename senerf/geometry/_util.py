@@ -1,0 +1,47 @@
+"""Private helpers shared by the geometry modules: dtypes and shape checks.
+
+Dtype rule of the whole package: the *data* argument of a function (points, uv, depth, eye, c2w for the
+pose functions) decides the output dtype: float32 stays float32, everything else (float64, ints, bools,
+lists) becomes float64.  Poses are always *composed* in float64.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = ["float_dtype", "as_float", "check_last", "check_pose"]
+
+
+def float_dtype(x) -> np.dtype:
+    """``float32`` if ``x`` is a float32 array (or scalar), else ``float64``."""
+    dt = getattr(x, "dtype", None)
+    return np.dtype(np.float32) if dt == np.float32 else np.dtype(np.float64)
+
+
+def as_float(x, name: str, dtype=None) -> np.ndarray:
+    """``x`` as a float array (dtype by the package rule unless given); raises ``ValueError`` if not numeric."""
+    try:
+        arr = np.asarray(x)
+    except Exception as exc:  # pragma: no cover - exotic inputs
+        raise ValueError(f"{name}: cannot be converted to an array ({exc})") from None
+    if arr.dtype.kind not in "biuf":
+        raise ValueError(f"{name}: expected a real numeric array, got dtype {arr.dtype}")
+    return arr.astype(float_dtype(arr) if dtype is None else dtype, copy=False)
+
+
+def check_last(arr: np.ndarray, tail: tuple, name: str) -> None:
+    """Raise ``ValueError`` unless ``arr.shape`` ends with ``tail`` (``None`` matches any size)."""
+    n = len(tail)
+    ok = arr.ndim >= n and all(t is None or s == t for s, t in zip(arr.shape[arr.ndim - n:], tail))
+    if not ok:
+        want = "(..., " + ", ".join("*" if t is None else str(t) for t in tail) + ")"
+        raise ValueError(f"{name}: expected shape {want}, got {arr.shape}")
+
+
+def check_pose(c2w, name: str = "c2w", allow_3x4: bool = True) -> np.ndarray:
+    """Return ``c2w`` as a float array of shape ``(..., 4, 4)`` or ``(..., 3, 4)`` (shape check only)."""
+    arr = as_float(c2w, name)
+    if arr.ndim < 2 or arr.shape[-1] != 4 or arr.shape[-2] not in ((3, 4) if allow_3x4 else (4,)):
+        want = "(..., 4, 4) or (..., 3, 4)" if allow_3x4 else "(..., 4, 4)"
+        raise ValueError(f"{name}: expected shape {want}, got {arr.shape}")
+    return arr

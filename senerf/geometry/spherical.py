@@ -1,0 +1,241 @@
+"""Spherical camera placement around a centre, optical-axis centres, and pseudo-view sampling.
+
+Convention:
+    Angles are degrees.  For a unit ``up`` the fixed right-handed basis ``(e1, e2, up)`` is
+    ``e1 = normalize(a - (a . up) up)`` with ``a = +x`` (or ``+y`` when ``|up_x| > 0.9``) and
+    ``e2 = up x e1``; for ``up = +z`` this is ``e1 = +x``, ``e2 = +y``.  The camera centre of
+    ``(azimuth, elevation, radius)`` is ``center + r (cos el cos az e1 + cos el sin az e2 + sin el up)``.
+    The OpenCV camera looks at ``center`` (z = -d with ``d`` the unit offset above), its x axis is the
+    azimuth tangent ``t_az = -sin az e1 + cos az e2`` and y = z x x = -(elevation tangent), so the image
+    up (-y) leans towards ``up``.  Built by composition (never via look-at), the rotation is proper at every
+    elevation in [-90, 90] including the poles.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ._util import as_float, check_last, check_pose
+
+__all__ = [
+    "pose_from_spherical",
+    "spherical_from_pose",
+    "closest_point_to_axes",
+    "sample_pseudo_views",
+    "spherical_basis",
+]
+
+#: Largest |elevation| (degrees) that :func:`sample_pseudo_views` produces.
+MAX_PSEUDO_ELEVATION_DEG = 89.9
+
+
+def _unit(v: np.ndarray, name: str) -> np.ndarray:
+    n = np.linalg.norm(v, axis=-1, keepdims=True)
+    if not np.isfinite(v).all() or (n <= 0).any():
+        raise ValueError(f"{name}: must be finite and non-zero")
+    return v / n
+
+
+def spherical_basis(up=(0.0, 0.0, 1.0)) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The right-handed basis ``(e1, e2, up_unit)`` of the spherical convention, each ``(..., 3)`` float64.
+
+    Example:
+        >>> [b.tolist() for b in spherical_basis((0.0, 0.0, 2.0))]
+        [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]
+    """
+    u = as_float(up, "up", np.float64)
+    check_last(u, (3,), "up")
+    u = _unit(u, "up")
+    a = np.where((np.abs(u[..., :1]) > 0.9), np.array([0.0, 1.0, 0.0]), np.array([1.0, 0.0, 0.0]))
+    e1 = a - np.sum(a * u, axis=-1, keepdims=True) * u
+    e1 = e1 / np.linalg.norm(e1, axis=-1, keepdims=True)
+    e2 = np.cross(u, e1)
+    return e1, e2, u
+
+
+def pose_from_spherical(azimuth, elevation, radius, center=(0.0, 0.0, 0.0), up=(0.0, 0.0, 1.0)) -> np.ndarray:
+    """Camera-to-world pose of a camera on a sphere around ``center``, looking at it (see module convention).
+
+    Args:
+        azimuth: ``(...)`` degrees, any value.
+        elevation: ``(...)`` degrees in ``[-90, 90]``.
+        radius: ``(...)`` positive distance to ``center``.
+        center: ``(..., 3)`` world point looked at.
+        up: ``(..., 3)`` world up (any non-zero length).
+
+    Returns:
+        ``(..., 4, 4)`` OpenCV camera-to-world (batch = broadcast of all inputs), dtype of ``azimuth``.
+
+    Example:
+        >>> c2w = pose_from_spherical(90.0, 30.0, 4.0)   # NeRF's pose_spherical(0, -30, 4) position
+        >>> c2w[:3, 3].round(4).tolist()
+        [0.0, 3.4641, 2.0]
+    """
+    az_a = as_float(azimuth, "azimuth")
+    dtype = az_a.dtype
+    az = np.deg2rad(az_a.astype(np.float64))
+    el_deg = as_float(elevation, "elevation", np.float64)
+    r = as_float(radius, "radius", np.float64)
+    c = as_float(center, "center", np.float64)
+    check_last(c, (3,), "center")
+    if not (np.isfinite(az).all() and np.isfinite(c).all()):
+        raise ValueError("pose_from_spherical: azimuth and center must be finite")
+    if not np.isfinite(el_deg).all() or (np.abs(el_deg) > 90.0).any():
+        raise ValueError("pose_from_spherical: elevation must be finite and within [-90, 90] degrees")
+    if not np.isfinite(r).all() or (r <= 0).any():
+        raise ValueError("pose_from_spherical: radius must be positive and finite")
+    e1, e2, u = spherical_basis(up)
+    el = np.deg2rad(el_deg)
+    az, el, r = np.broadcast_arrays(az, el, r)
+    ca, sa, ce, se = np.cos(az)[..., None], np.sin(az)[..., None], np.cos(el)[..., None], np.sin(el)[..., None]
+    d = ce * ca * e1 + ce * sa * e2 + se * u  # unit offset from the centre
+    t_az = -sa * e1 + ca * e2
+    t_el = -se * ca * e1 - se * sa * e2 + ce * u
+    batch = np.broadcast_shapes(d.shape, c.shape)
+    out = np.zeros(batch[:-1] + (4, 4))
+    out[..., :3, 0] = t_az
+    out[..., :3, 1] = -t_el
+    out[..., :3, 2] = -d
+    out[..., :3, 3] = c + r[..., None] * d
+    out[..., 3, 3] = 1.0
+    return out.astype(dtype, copy=False)
+
+
+def spherical_from_pose(c2w, center=(0.0, 0.0, 0.0), up=(0.0, 0.0, 1.0)):
+    """``(azimuth, elevation, radius)`` of camera centres around ``center`` (inverse of :func:`pose_from_spherical`).
+
+    Azimuth is in ``(-180, 180]``, elevation in ``[-90, 90]`` (degrees).  Only the camera centre matters,
+    except at the poles (horizontal offset below ``1e-12 r``), where the azimuth of the position is undefined:
+    there the azimuth is read from the camera x axis as the azimuth tangent (``atan2(-x.e1, x.e2)``), which
+    returns the azimuth that :func:`pose_from_spherical` was given.
+
+    Args:
+        c2w: ``(..., 4, 4)`` or ``(..., 3, 4)`` camera-to-world.
+        center: ``(..., 3)``; up: ``(..., 3)``.
+
+    Returns:
+        Three arrays ``(...)``, dtype of ``c2w``.
+
+    Raises:
+        ValueError: a camera centre equal to ``center`` (radius 0).
+    """
+    arr = check_pose(c2w)
+    dtype = arr.dtype
+    a = arr.astype(np.float64)
+    c = as_float(center, "center", np.float64)
+    check_last(c, (3,), "center")
+    e1, e2, u = spherical_basis(up)
+    p = a[..., :3, 3] - c
+    r = np.linalg.norm(p, axis=-1)
+    if not np.isfinite(r).all() or (r <= 0).any():
+        raise ValueError("spherical_from_pose: camera centre equals center (or is non-finite)")
+    pu = np.sum(p * u, axis=-1)
+    p1, p2 = np.sum(p * e1, axis=-1), np.sum(p * e2, axis=-1)
+    el = np.degrees(np.arctan2(pu, np.hypot(p1, p2)))
+    x = a[..., :3, 0]
+    pole = np.hypot(p1, p2) <= 1e-12 * r
+    az = np.where(pole, np.arctan2(-np.sum(x * e1, axis=-1), np.sum(x * e2, axis=-1)), np.arctan2(p2, p1))
+    az = np.degrees(az)
+    az = np.where(az <= -180.0, az + 360.0, az)
+    return az.astype(dtype), el.astype(dtype), r.astype(dtype)
+
+
+def closest_point_to_axes(c2w) -> np.ndarray:
+    """Least-squares point nearest to every optical axis (the +z ray line of each camera).
+
+    Minimises ``sum_i |(I - z_i z_i^T)(p - o_i)|^2``; solved in float64.
+
+    Args:
+        c2w: ``(n, 4, 4)`` or ``(n, 3, 4)`` camera-to-world (any leading dims, flattened), ``n >= 1``.
+
+    Returns:
+        ``(3,)`` world point, dtype of ``c2w``.
+
+    Raises:
+        ValueError: when the axes are (nearly) all parallel (the system is rank deficient: condition
+            number above 1e10) or the input is non-finite.
+
+    Example:
+        >>> poses = np.stack([pose_from_spherical(a, 10.0, 4.0, center=(1, 2, 3)) for a in (0, 90, 200)])
+        >>> closest_point_to_axes(poses).round(9).tolist()
+        [1.0, 2.0, 3.0]
+    """
+    arr = check_pose(c2w)
+    a = arr.astype(np.float64).reshape((-1,) + arr.shape[-2:])
+    if a.shape[0] == 0 or not np.isfinite(a).all():
+        raise ValueError("closest_point_to_axes: need at least one finite pose")
+    z = a[:, :3, 2] / np.linalg.norm(a[:, :3, 2], axis=-1, keepdims=True)
+    o = a[:, :3, 3]
+    proj = np.eye(3) - z[:, :, None] * z[:, None, :]
+    lhs = proj.sum(axis=0)
+    rhs = (proj @ o[:, :, None]).sum(axis=0)[:, 0]
+    w = np.linalg.eigvalsh(lhs)
+    if w[0] <= 1e-10 * w[-1]:
+        raise ValueError(
+            "closest_point_to_axes: the optical axes are all parallel, so no unique closest point exists; "
+            "pass the scene centre explicitly"
+        )
+    return np.linalg.solve(lhs, rhs).astype(arr.dtype)
+
+
+def sample_pseudo_views(input_c2w, max_offset_deg, n, rng, center=None, up=None):
+    """Random poses near the input views, for pseudo-view rendering.
+
+    Pseudo view ``k`` comes from input view ``source_index[k] = k % m`` (round robin over the ``m`` inputs,
+    so every input gets ``n // m`` or ``n // m + 1`` views).  Its azimuth is the source's azimuth plus an
+    offset drawn uniformly from ``[-max_offset, max_offset]``; its elevation is drawn uniformly from
+    ``[el - max_offset, el + max_offset]`` intersected with ``[-89.9, 89.9]`` (so it never crosses a pole);
+    its radius is the source's distance to ``center``; it looks at ``center`` with image up toward ``up``
+    (:func:`pose_from_spherical`).  Draws: first ``n`` azimuth uniforms, then ``n`` elevation uniforms from
+    ``rng``; the result is deterministic for a given generator state.
+
+    Args:
+        input_c2w: ``(m, 4, 4)`` camera-to-world of the known views, ``m >= 1``.
+        max_offset_deg: ``>= 0`` half-width of the angular window, degrees.
+        n: number of pseudo views, ``>= 0``.
+        rng: ``np.random.Generator``.
+        center: ``(3,)`` point looked at; default :func:`closest_point_to_axes` of the inputs.
+        up: ``(3,)``; default the normalized mean of the inputs' image-up axes (``-y`` camera axis,
+            ``-c2w[:, :3, 1]``); raises ``ValueError`` if that mean is (near) zero.
+
+    Returns:
+        ``(c2w (n, 4, 4), source_index (n,) int64)``; ``c2w`` has the dtype of ``input_c2w``.
+
+    Example:
+        >>> inputs = pose_from_spherical(np.array([0.0, 120.0]), 20.0, 4.0)
+        >>> c2w, src = sample_pseudo_views(inputs, 10.0, 4, np.random.default_rng(0))
+        >>> c2w.shape, src.tolist()
+        ((4, 4, 4), [0, 1, 0, 1])
+    """
+    arr = check_pose(input_c2w, "input_c2w")
+    if arr.ndim != 3 or arr.shape[0] < 1:
+        raise ValueError(f"input_c2w: expected shape (m, 4, 4) with m >= 1, got {arr.shape}")
+    if not isinstance(rng, np.random.Generator):
+        raise ValueError("rng: expected a numpy.random.Generator")
+    off = float(max_offset_deg)
+    if not np.isfinite(off) or off < 0:
+        raise ValueError(f"max_offset_deg: must be finite and >= 0, got {max_offset_deg!r}")
+    if int(n) != n or n < 0:
+        raise ValueError(f"n: must be an integer >= 0, got {n!r}")
+    n = int(n)
+    a = arr.astype(np.float64)
+    if center is None:
+        center = closest_point_to_axes(a)
+    c = as_float(center, "center", np.float64).reshape(3)
+    if up is None:
+        mean_up = -a[:, :3, 1].mean(axis=0)
+        norm = np.linalg.norm(mean_up)
+        if not norm > 1e-6:
+            raise ValueError("sample_pseudo_views: the input cameras' image-up axes cancel out; pass up explicitly")
+        up = mean_up / norm
+    u = as_float(up, "up", np.float64).reshape(3)
+    az0, el0, r0 = spherical_from_pose(a, c, u)
+    src = np.arange(n, dtype=np.int64) % arr.shape[0]
+    d_az = rng.uniform(-off, off, size=n)
+    t_el = rng.uniform(0.0, 1.0, size=n)
+    lim = MAX_PSEUDO_ELEVATION_DEG
+    lo = np.clip(el0[src] - off, -lim, lim)
+    hi = np.clip(el0[src] + off, -lim, lim)
+    el = lo + t_el * (hi - lo)
+    c2w = pose_from_spherical(az0[src] + d_az, el, r0[src], center=c, up=u)
+    return c2w.astype(arr.dtype, copy=False).reshape(n, 4, 4), src

@@ -1,0 +1,156 @@
+"""Tests of senerf/data/fewshot.py: the few-shot protocols and their input checks."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from senerf.data import EXTREME_VIEWS, Scene, fewshot_split
+from senerf.errors import InputError
+from senerf.geometry import Intrinsics
+
+
+def make_scene(n: int, splits: dict, kind: str = "object", name: str = "lego") -> Scene:
+    """A 1x1-pixel scene with ``n`` views (only indices matter here)."""
+    k = Intrinsics(1.0, 1.0, 0.5, 0.5, 1, 1)
+    return Scene(
+        name=name, root=Path(name), rgb=np.zeros((n, 1, 1, 3), np.float32), alpha=None, intrinsics=k,
+        intrinsics_all=(k,) * n, c2w=np.broadcast_to(np.eye(4), (n, 4, 4)).copy(), splits=splits, kind=kind,
+        image_paths=tuple(Path(f"{i}.png") for i in range(n)),
+    )
+
+
+def blender_like(name="lego", n_train=100, n_val=10, n_test=20) -> Scene:
+    # Arrays: val first here (not train), so "index into the train split" differs from "index into all".
+    n = n_train + n_val + n_test
+    return make_scene(n, {"val": np.arange(n_val), "train": np.arange(n_val, n_val + n_train),
+                          "test": np.arange(n_val + n_train, n)}, name=name)
+
+
+def test_extreme_lego_indexes_train_split():
+    scene = blender_like()
+    train, test = fewshot_split(scene, "extreme")
+    assert train.tolist() == [10 + 0, 10 + 1, 10 + 51]  # lego 0, 1, 51 into the train split (offset 10)
+    assert test.tolist() == list(range(110, 130))
+
+
+def test_extreme_table_matches_reference():
+    assert EXTREME_VIEWS["lego"] == (0, 1, 51) and EXTREME_VIEWS["chair"] == (26, 31, 32)
+    assert EXTREME_VIEWS["mic"] == (35, 65, 82) and len(EXTREME_VIEWS) == 8
+
+
+def test_extreme_scene_name_is_case_insensitive():
+    assert fewshot_split(blender_like("Ship"), "extreme")[0].tolist() == [46, 65, 76]
+
+
+def test_extreme_unknown_scene_needs_views():
+    scene = blender_like("kitchen")
+    with pytest.raises(InputError, match="kitchen") as info:
+        fewshot_split(scene, "extreme")
+    assert info.value.field == "--views"
+    assert fewshot_split(scene, "extreme", views=[5, 2])[0].tolist() == [15, 12]
+
+
+def test_real_lego_extreme(lego4):
+    train, test = fewshot_split(lego4, "extreme")
+    assert train.tolist() == [0, 1, 51]  # Blender arrays start with the train split
+    assert test.tolist() == list(range(200, 400))
+
+
+def test_infonerf4():
+    assert fewshot_split(blender_like(), "infonerf4")[0].tolist() == [36, 96, 12, 65]
+
+
+def test_random8_seeded_distinct_in_train_split():
+    scene = blender_like()
+    a, test = fewshot_split(scene, "random8", seed=3)
+    b, _ = fewshot_split(scene, "random8", seed=3)
+    c, _ = fewshot_split(scene, "random8", seed=4)
+    assert a.tolist() == b.tolist() and a.tolist() != c.tolist()
+    assert len(set(a.tolist())) == 8 and set(a.tolist()) <= set(range(10, 110))
+    want = 10 + np.random.default_rng(3).choice(100, 8, replace=False)  # the documented draw
+    assert a.tolist() == want.tolist()
+    assert fewshot_split(scene, "random8", n_views=5)[0].size == 5
+
+
+def test_llff_protocol_general_n():
+    # 30 images: test = 0, 8, 16, 24; rest has 26 entries; linspace(0, 25, 4) = 0, 8.33, 16.67, 25
+    # -> round 0, 8, 17, 25 -> rest = [1..7, 9..15, 17..23, 25..29] -> 1, 10, 20, 29.
+    scene = make_scene(30, {"train": np.arange(30)}, kind="forward_facing")
+    train, test = fewshot_split(scene, "llff", n_views=4)
+    assert test.tolist() == [0, 8, 16, 24]
+    assert train.tolist() == [1, 10, 20, 29]
+
+
+def test_views_blender_into_train_split():
+    train, test = fewshot_split(blender_like(), "views", views=[0, 99])
+    assert train.tolist() == [10, 109] and test.tolist() == list(range(110, 130))
+
+
+def test_views_llff_into_all_images_and_test_excludes_train():
+    scene = make_scene(20, {"train": [i for i in range(20) if i % 8], "test": [0, 8, 16]}, kind="forward_facing")
+    train, test = fewshot_split(scene, "views", views=[8, 3])
+    assert train.tolist() == [8, 3] and test.tolist() == [0, 16]
+
+
+def test_views_ngp_without_splits_tests_on_the_rest():
+    scene = make_scene(5, {"train": np.arange(5)})
+    train, test = fewshot_split(scene, "views", views=[1, 3])
+    assert train.tolist() == [1, 3] and test.tolist() == [0, 2, 4]
+
+
+def test_all_protocol():
+    train, test = fewshot_split(blender_like(), "all")
+    assert train.tolist() == list(range(10, 110)) and test.tolist() == list(range(110, 130))
+
+
+@pytest.mark.parametrize(
+    "kwargs, field, problem",
+    [
+        (dict(protocol="extreme", views=[0, 100]), "--views", "out of range"),
+        (dict(protocol="extreme", views=[-1]), "--views", "out of range"),
+        (dict(protocol="views", views=[3, 3]), "--views", "duplicate"),
+        (dict(protocol="views", views=[1.5]), "--views", "not an integer"),
+        (dict(protocol="views", views=[]), "--views", "empty"),
+        (dict(protocol="views"), "--views", "needs explicit"),
+        (dict(protocol="views", views="1,2"), "--views", "list of view indices"),
+        (dict(protocol="llff", views=[1]), "--views", "not used"),
+        (dict(protocol="extreme", n_views=3), "--n-views", "not used"),
+        (dict(protocol="llff", n_views=0), "--n-views", "must be in"),
+        (dict(protocol="llff", n_views=200), "--n-views", "must be in"),
+        (dict(protocol="random8", n_views=101), "--n-views", "must be in"),
+        (dict(protocol="fancy"), "--protocol", "unknown protocol"),
+    ],
+)
+def test_bad_protocol_input(kwargs, field, problem):
+    with pytest.raises(InputError) as info:
+        fewshot_split(blender_like(), **kwargs)
+    assert info.value.field == field and problem in info.value.problem
+
+
+def test_protocol_needing_test_split_on_ngp_scene():
+    scene = make_scene(5, {"train": np.arange(5)}, name="lego")
+    with pytest.raises(InputError, match="no test split") as info:
+        fewshot_split(scene, "extreme", views=[0])
+    assert info.value.field == "--protocol"
+
+
+from hypothesis import given, settings, strategies as st  # noqa: E402
+
+
+@settings(max_examples=60, deadline=None)
+@given(n=st.integers(2, 80), frac=st.floats(0.0, 1.0))
+def test_llff_protocol_properties(n, frac):
+    # For any size: test is exactly the multiples of 8, train has n_views distinct non-test views in
+    # increasing order, and the first and last non-test images are always used when n_views >= 2.
+    scene = make_scene(n, {"train": np.arange(n)}, kind="forward_facing")
+    n_rest = n - len(range(0, n, 8))
+    k = 1 + int(frac * (n_rest - 1))
+    train, test = fewshot_split(scene, "llff", n_views=k)
+    assert test.tolist() == list(range(0, n, 8))
+    assert len(train) == k and np.all(np.diff(train) > 0) and np.all(train % 8 != 0)
+    if k >= 2:
+        rest = [i for i in range(n) if i % 8]
+        assert train[0] == rest[0] and train[-1] == rest[-1]

@@ -1,0 +1,122 @@
+"""Tests of senerf/data/_io.py: image decoding (accepted unusual formats), path checks, pose checks."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import cv2
+import imageio.v3 as iio
+import numpy as np
+import pytest
+
+from senerf.data import _io
+from senerf.errors import InputError
+
+
+def test_rgba_8bit_scaled_by_255(tmp_path):
+    img = np.random.default_rng(0).integers(0, 256, (3, 5, 4), dtype=np.uint8)
+    iio.imwrite(tmp_path / "a.png", img)
+    rgb, alpha = _io.read_image(tmp_path / "a.png", "f")
+    assert rgb.dtype == np.float32 and rgb.shape == (3, 5, 3) and alpha.shape == (3, 5)
+    np.testing.assert_allclose(rgb, img[..., :3] / 255.0, atol=1e-7)
+    np.testing.assert_allclose(alpha, img[..., 3] / 255.0, atol=1e-7)
+
+
+def test_grey_png_expands_to_three_equal_channels(tmp_path):
+    img = np.random.default_rng(1).integers(0, 256, (4, 6), dtype=np.uint8)
+    iio.imwrite(tmp_path / "g.png", img)
+    rgb, alpha = _io.read_image(tmp_path / "g.png", "f")
+    assert alpha is None and rgb.shape == (4, 6, 3)
+    for c in range(3):
+        np.testing.assert_allclose(rgb[..., c], img / 255.0, atol=1e-7)
+
+
+def test_grey_alpha_png_keeps_alpha(tmp_path):
+    img = np.random.default_rng(2).integers(0, 256, (4, 6, 2), dtype=np.uint8)
+    iio.imwrite(tmp_path / "ga.png", img)
+    rgb, alpha = _io.read_image(tmp_path / "ga.png", "f")
+    np.testing.assert_allclose(rgb[..., 1], img[..., 0] / 255.0, atol=1e-7)
+    np.testing.assert_allclose(alpha, img[..., 1] / 255.0, atol=1e-7)
+
+
+def test_16bit_grey_png_scaled_by_65535(tmp_path):
+    # 65535 -> 1.0 and 32768 -> 32768/65535 (not /255, not truncated to 8 bits).
+    img = np.array([[0, 1, 32768, 65535]], dtype=np.uint16)
+    iio.imwrite(tmp_path / "g16.png", img)
+    rgb, alpha = _io.read_image(tmp_path / "g16.png", "f")
+    assert alpha is None
+    np.testing.assert_allclose(rgb[0, :, 0], img[0] / 65535.0, rtol=0, atol=1e-7)
+
+
+def test_16bit_rgba_png_keeps_16_bits(tmp_path):
+    # Pillow would truncate a 16-bit colour PNG to 8 bits; values 1 and 257 would then collide.
+    img = np.random.default_rng(4).integers(0, 65536, (3, 4, 4), dtype=np.uint16)
+    img[0, 0, :3] = (1, 257, 65535)
+    cv2.imwrite(str(tmp_path / "c16.png"), img[..., [2, 1, 0, 3]])  # OpenCV stores BGRA order
+    rgb, alpha = _io.read_image(tmp_path / "c16.png", "f")
+    np.testing.assert_allclose(rgb, img[..., :3] / 65535.0, atol=1e-7)
+    np.testing.assert_allclose(alpha, img[..., 3] / 65535.0, atol=1e-7)
+
+
+def test_rgb_png_has_no_alpha(tmp_path):
+    iio.imwrite(tmp_path / "c.png", np.zeros((2, 2, 3), np.uint8))
+    assert _io.read_image(tmp_path / "c.png", "f")[1] is None
+
+
+def test_load_images_mixed_alpha_makes_missing_alpha_opaque(tmp_path):
+    iio.imwrite(tmp_path / "a.png", np.full((2, 2, 4), 128, np.uint8))
+    iio.imwrite(tmp_path / "b.png", np.full((2, 2, 3), 64, np.uint8))
+    paths = [tmp_path / "a.png", tmp_path / "b.png"]
+    rgb, alpha, size = _io.load_images(paths, ["a", "b"], paths, 1.0)
+    assert size == (2, 2)
+    np.testing.assert_allclose(alpha[0], 128 / 255.0, atol=1e-7)
+    np.testing.assert_array_equal(alpha[1], 1.0)
+    np.testing.assert_allclose(rgb[1], 64 / 255.0, atol=1e-7)
+
+
+def test_load_images_all_rgb_gives_alpha_none(tmp_path):
+    iio.imwrite(tmp_path / "b.png", np.full((2, 2, 3), 64, np.uint8))
+    assert _io.load_images([tmp_path / "b.png"], ["b"], [tmp_path], 1.0)[1] is None
+
+
+def test_resize_transparent_pixels_get_zero_colour():
+    # A block whose alpha is all 0 has no defined colour; the loader stores 0.
+    img = np.zeros((2, 2, 4), np.float32)
+    img[..., :3] = 0.7
+    out = _io.resize_area(img, (1, 1))
+    np.testing.assert_array_equal(out, 0.0)
+
+
+def test_resize_straight_colour_of_half_covered_block():
+    # 2x2 block: one red pixel alpha 1, three pixels alpha 0 (colour garbage).  Premultiplied mean colour
+    # is (0.25, 0, 0), mean alpha 0.25 -> straight colour exactly red (1, 0, 0), alpha 0.25.
+    img = np.zeros((2, 2, 4), np.float32)
+    img[..., 1] = 0.9
+    img[0, 0] = (1.0, 0.0, 0.0, 1.0)
+    out = _io.resize_area(img, (1, 1))
+    np.testing.assert_allclose(out[0, 0], (1.0, 0.0, 0.0, 0.25), atol=1e-6)
+
+
+@pytest.mark.parametrize(
+    "rel, ok",
+    [("a/b.png", True), ("./a/../b.png", True), ("../b.png", False), ("a/../../b.png", False),
+     ("/etc/passwd", False), ("C:\\x.png", False), ("", False)],
+)
+def test_resolve_inside(rel, ok, tmp_path):
+    if ok:
+        p = _io.resolve_inside(tmp_path, rel, tmp_path / "t.json", "file_path")
+        assert Path(p).parent.resolve().is_relative_to(tmp_path.resolve())
+    else:
+        with pytest.raises(InputError) as info:
+            _io.resolve_inside(tmp_path, rel, tmp_path / "t.json", "file_path")
+        assert info.value.field == "file_path"
+
+
+def test_as_pose_accepts_3x4_and_real_float32_noise(tmp_path):
+    # A rotation printed in float32 (error ~1e-7, like the lego JSON) is accepted; 3x4 gets 0 0 0 1.
+    theta = 0.3
+    rot = np.array([[np.cos(theta), -np.sin(theta), 0], [np.sin(theta), np.cos(theta), 0], [0, 0, 1]])
+    m = np.concatenate([rot, [[1.0], [2.0], [3.0]]], axis=1).astype(np.float32).astype(np.float64)
+    out = _io.as_pose(m.tolist(), tmp_path, "m")
+    np.testing.assert_array_equal(out[3], (0, 0, 0, 1))
+    np.testing.assert_array_equal(out[:3], m)

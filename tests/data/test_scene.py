@@ -1,0 +1,91 @@
+"""Tests of senerf/data/scene.py: the Scene container and compositing."""
+
+from __future__ import annotations
+
+import dataclasses
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from senerf.data import Scene
+from senerf.errors import InputError
+from senerf.geometry import Intrinsics
+
+
+def _scene(with_alpha=True, **over) -> Scene:
+    k = Intrinsics(2.0, 2.0, 1.0, 1.0, 2, 2)
+    rgb = np.array([[[[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]], [[0.0, 0.0, 1.0], [0.5, 0.5, 0.5]]]], np.float32)
+    a = np.array([[[1.0, 0.0], [0.5, 0.25]]], np.float32)
+    fields = dict(name="t", root=Path("t"), rgb=rgb, alpha=a if with_alpha else None, intrinsics=k,
+                  intrinsics_all=(k,), c2w=np.eye(4)[None], splits={"train": [0]}, image_paths=("a.png",))
+    fields.update(over)
+    return Scene(**fields)
+
+
+def test_composite_over_background():
+    # rgb * a + bg * (1 - a), pixel by pixel, bg = (0, 0, 1):
+    # red a=1 -> red; green a=0 -> bg; blue a=.5 -> blue; grey .5 a=.25 -> .125 + .75 * bg.
+    out = _scene().composite((0.0, 0.0, 1.0))
+    want = [[[1, 0, 0], [0, 0, 1]], [[0, 0, 1], [0.125, 0.125, 0.875]]]
+    np.testing.assert_allclose(out[0], want, atol=1e-7)
+    assert out.dtype == np.float32
+
+
+def test_composite_subset_matches_full():
+    k = Intrinsics(2.0, 2.0, 1.0, 1.0, 2, 2)
+    rng = np.random.default_rng(0)
+    s = _scene(rgb=rng.random((3, 2, 2, 3), dtype=np.float32), alpha=rng.random((3, 2, 2), dtype=np.float32),
+               intrinsics_all=(k,) * 3, c2w=np.broadcast_to(np.eye(4), (3, 4, 4)).copy(),
+               image_paths=("a", "b", "c"))
+    np.testing.assert_array_equal(s.composite(0.3, idx=[2, 0]), s.composite(0.3)[[2, 0]])
+    with pytest.raises(ValueError):
+        s.composite(0.3, idx=[3])
+
+
+def test_composite_without_alpha_is_a_copy():
+    s = _scene(with_alpha=False)
+    out = s.composite(1.0)
+    np.testing.assert_array_equal(out, s.rgb)
+    assert out is not s.rgb
+
+
+def test_composite_refuses_other_background_after_load_time_composite():
+    s = dataclasses.replace(_scene(), background=(1.0, 1.0, 1.0))
+    np.testing.assert_array_equal(s.composite(1.0), s.rgb)
+    with pytest.raises(ValueError, match="reload"):
+        s.composite(0.0)
+
+
+def test_composite_bad_background():
+    with pytest.raises(InputError):
+        _scene().composite((2.0, 0.0, 0.0))
+
+
+def test_splits_normalised_to_all_names():
+    s = _scene()
+    assert set(s.splits) == {"train", "val", "test"}
+    assert s.splits["train"].dtype == np.int64 and s.splits["test"].size == 0
+
+
+@pytest.mark.parametrize(
+    "over",
+    [dict(rgb=np.zeros((1, 2, 2, 3), np.float64)), dict(c2w=np.eye(4)[None].astype(np.float32)),
+     dict(alpha=np.zeros((1, 2, 3), np.float32)), dict(splits={"train": [1]}), dict(kind="room"),
+     dict(image_paths=()), dict(intrinsics_all=())],
+)
+def test_inconsistent_scene_is_a_programming_error(over):
+    with pytest.raises(ValueError):
+        _scene(**over)
+
+
+def test_frozen():
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        _scene().name = "x"
+
+
+def test_senerf_data_never_imports_torch():
+    code = "import sys, senerf.data; assert 'torch' not in sys.modules, 'torch imported'"
+    subprocess.run([sys.executable, "-c", code], check=True)

@@ -1,0 +1,104 @@
+"""Tests of senerf/geometry/intrinsics.py."""
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+from senerf.geometry import Intrinsics
+
+
+def test_K_layout():
+    k = Intrinsics(500.0, 400.0, 256.0, 128.0, 512, 300)
+    np.testing.assert_array_equal(k.K, [[500, 0, 256], [0, 400, 128], [0, 0, 1]])
+    assert k.K.dtype == np.float64
+    assert k.size == (300, 512)
+
+
+def test_blender_lego_focal():
+    # f = 0.5 W / tan(0.5 camera_angle_x) = 400 / tan(0.345555603504) = 400 / 0.3600000... = 1111.111 px
+    k = Intrinsics.from_fov(math.degrees(0.6911112070083618), 800, 800)
+    assert k.fx == pytest.approx(1111.111, abs=1e-3)
+    assert (k.cx, k.cy) == (400.0, 400.0)
+    assert k.fov_x_deg == pytest.approx(math.degrees(0.6911112070083618), rel=1e-12)
+
+
+def test_lego_file_focal(lego_dir):
+    meta = json.loads((lego_dir / "transforms_train.json").read_text())
+    k = Intrinsics.from_fov(math.degrees(meta["camera_angle_x"]), 800, 800)
+    assert k.fx == pytest.approx(1111.111, abs=1e-3)
+
+
+def test_scaled_is_diag_s_s_1_times_K():
+    k = Intrinsics(1111.1, 1000.0, 400.0, 300.0, 800, 600)
+    for s in (0.5, 0.25, 2.0):
+        ks = k.scaled(s)
+        np.testing.assert_allclose(ks.K, np.diag([s, s, 1.0]) @ k.K, rtol=1e-15)
+        assert (ks.width, ks.height) == (800 * s, 600 * s)
+
+
+def test_scaled_pixel_centres_map_exactly():
+    # Pixel-centre convention: half-size pixel 0 covers full-size [0, 2), so its centre 0.5 must be the
+    # full-size coordinate 1.0 (the edge between pixels 0 and 1): u_half = 0.5 * u_full for every point.
+    k_small = Intrinsics(500.0, 500.0, 256.0, 200.0, 512, 400).scaled(0.5)
+    ray_at_full_1 = np.linalg.solve(Intrinsics(500.0, 500.0, 256.0, 200.0, 512, 400).K, [1.0, 1.0, 1.0])
+    np.testing.assert_allclose((k_small.K @ ray_at_full_1)[:2], [0.5, 0.5])
+    k = Intrinsics(500.0, 500.0, 256.0, 200.0, 512, 400)
+    x = np.array([0.3, -0.1, 1.0])
+    u_full = k.K @ x
+    u_half = k.scaled(0.5).K @ x
+    np.testing.assert_allclose(u_half[:2], 0.5 * u_full[:2])
+
+
+def test_scaled_non_integer_size_raises_and_resized_works():
+    k = Intrinsics(1111.0, 1111.0, 400.0, 400.0, 800, 800)
+    with pytest.raises(ValueError, match="non-integer"):
+        k.scaled(1 / 3)
+    r = k.resized(266, 266)
+    assert r.fx == pytest.approx(1111.0 * 266 / 800)
+    assert (r.width, r.height) == (266, 266)
+
+
+@pytest.mark.parametrize("field", ["fx", "fy"])
+@pytest.mark.parametrize("bad", [0.0, -1.0, float("nan"), float("inf")])
+def test_bad_focal_raises_naming_field(field, bad):
+    args = dict(fx=500.0, fy=500.0, cx=1.0, cy=1.0, width=2, height=2)
+    args[field] = bad
+    with pytest.raises(ValueError, match=field):
+        Intrinsics(**args)
+
+
+@pytest.mark.parametrize("field", ["cx", "cy"])
+def test_non_finite_principal_point_raises(field):
+    args = dict(fx=500.0, fy=500.0, cx=1.0, cy=1.0, width=2, height=2)
+    args[field] = float("nan")
+    with pytest.raises(ValueError, match=field):
+        Intrinsics(**args)
+
+
+@pytest.mark.parametrize("field", ["width", "height"])
+@pytest.mark.parametrize("bad", [0, -3, 2.5, True, float("nan"), "4"])
+def test_bad_size_raises_naming_field(field, bad):
+    args = dict(fx=500.0, fy=500.0, cx=1.0, cy=1.0, width=2, height=2)
+    args[field] = bad
+    with pytest.raises(ValueError, match=field):
+        Intrinsics(**args)
+
+
+def test_size_one_and_integral_float_and_numpy_int():
+    k = Intrinsics(10.0, 10.0, 0.5, 0.5, 1, np.int64(1))
+    assert k.size == (1, 1) and isinstance(k.height, int)
+    assert Intrinsics(10.0, 10.0, 0.5, 0.5, 800.0, 1).width == 800
+
+
+def test_frozen():
+    k = Intrinsics(1.0, 1.0, 0.5, 0.5, 1, 1)
+    with pytest.raises(Exception):
+        k.fx = 2.0
+
+
+@pytest.mark.parametrize("fov", [0.0, 180.0, -5.0, float("nan")])
+def test_from_fov_rejects_bad_fov(fov):
+    with pytest.raises(ValueError, match="fov"):
+        Intrinsics.from_fov(fov, 10, 10)

@@ -1,0 +1,170 @@
+"""Tests of senerf/geometry/spherical.py."""
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from senerf.geometry import (
+    closest_point_to_axes,
+    is_rigid,
+    look_at,
+    opengl_to_opencv,
+    pose_from_spherical,
+    sample_pseudo_views,
+    spherical_basis,
+    spherical_from_pose,
+)
+
+DTYPES = [np.float32, np.float64]
+
+
+def nerf_pose_spherical(theta, phi, radius):
+    """The original NeRF's composition (OpenGL camera, z-up world), re-typed as an independent reference."""
+    trans_t = np.array([[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, radius], [0, 0, 0, 1]], float)
+    p, t = np.radians(phi), np.radians(theta)
+    rot_phi = np.array([[1, 0, 0, 0], [0, np.cos(p), -np.sin(p), 0], [0, np.sin(p), np.cos(p), 0], [0, 0, 0, 1]])
+    rot_theta = np.array([[np.cos(t), 0, -np.sin(t), 0], [0, 1, 0, 0], [np.sin(t), 0, np.cos(t), 0], [0, 0, 0, 1]])
+    flip = np.array([[-1, 0, 0, 0], [0, 0, 1, 0], [0, 1, 0, 0], [0, 0, 0, 1]], float)
+    return flip @ rot_theta @ rot_phi @ trans_t
+
+
+@pytest.mark.parametrize("dtype", DTYPES)
+def test_golden_az90_el30_r4(dtype):
+    # By hand: centre = 4 (cos30 cos90, cos30 sin90, sin30) = (0, 3.4641, 2.0), NeRF's pose_spherical(0, -30, 4).
+    c2w = pose_from_spherical(np.asarray(90.0, dtype), 30.0, 4.0)
+    assert c2w.dtype == dtype
+    np.testing.assert_allclose(c2w[:3, 3], [0.0, 4 * np.sqrt(3) / 2, 2.0], atol=1e-5)
+    np.testing.assert_allclose(c2w, opengl_to_opencv(nerf_pose_spherical(0, -30, 4)), atol=1e-6)
+
+
+@pytest.mark.parametrize("theta", [-170, -90, -20, 0, 45, 130])
+@pytest.mark.parametrize("phi", [-80, -30, 0, 25, 70])
+def test_matches_nerf_composition(theta, phi):
+    # NeRF's camera looks at the origin with image up towards +z, like ours: the full poses must agree once
+    # the angles are read back from the position.
+    ref = opengl_to_opencv(nerf_pose_spherical(theta, phi, 3.0))
+    az, el, r = spherical_from_pose(ref)
+    assert float(el) == pytest.approx(-phi, abs=1e-9) and float(r) == pytest.approx(3.0)
+    np.testing.assert_allclose(pose_from_spherical(az, el, r), ref, atol=1e-12)
+
+
+def test_basis_right_handed_for_any_up():
+    rng = np.random.default_rng(0)
+    ups = np.concatenate([rng.normal(size=(50, 3)), np.eye(3), -np.eye(3)])
+    e1, e2, u = spherical_basis(ups)
+    frame = np.stack([e1, e2, u], -1)
+    np.testing.assert_allclose(frame.transpose(0, 2, 1) @ frame, np.broadcast_to(np.eye(3), (56, 3, 3)), atol=1e-12)
+    np.testing.assert_allclose(np.linalg.det(frame), 1.0)
+
+
+angles = st.floats(-179.999, 180.0, allow_nan=False)
+elevations = st.floats(-90.0, 90.0, allow_nan=False)
+unit_ish = st.tuples(*(st.floats(-1, 1, allow_nan=False),) * 3).filter(lambda v: np.linalg.norm(v) > 0.1)
+
+
+@settings(max_examples=150, deadline=None)
+@given(angles, elevations, st.floats(1e-3, 1e3), unit_ish, unit_ish)
+def test_spherical_round_trip(az, el, r, center, up):
+    c2w = pose_from_spherical(az, el, r, center=center, up=up)
+    assert is_rigid(c2w, atol=1e-12)
+    assert np.linalg.det(c2w[:3, :3]) == pytest.approx(1.0, abs=1e-12)
+    to_center = (np.asarray(center) - c2w[:3, 3]) / r
+    np.testing.assert_allclose(c2w[:3, 2], to_center, atol=1e-9)  # looks at the centre
+    up_u = np.asarray(up) / np.linalg.norm(up)
+    assert -c2w[:3, 1] @ up_u >= -1e-12  # image up leans towards up
+    az2, el2, r2 = spherical_from_pose(c2w, center, up)
+    assert float(r2) == pytest.approx(r, rel=1e-12)
+    assert float(el2) == pytest.approx(el, abs=1e-6)
+    # Azimuth round trips too, also at the poles (read from the camera x axis there); compare on the circle.
+    assert abs((float(az2) - az + 180) % 360 - 180) < 1e-6
+    assert -180 < float(az2) <= 180
+
+
+@pytest.mark.parametrize("el", [90.0, -90.0, 89.9999999, -89.9999999])
+def test_poles_are_proper_rotations(el):
+    az = np.linspace(-180, 180, 13)
+    c2w = pose_from_spherical(az, el, 2.0)
+    assert is_rigid(c2w, atol=1e-12).all()
+    np.testing.assert_allclose(np.linalg.det(c2w[:, :3, :3]), 1.0, atol=1e-12)
+    az2, el2, _ = spherical_from_pose(c2w)
+    np.testing.assert_allclose(el2, el, atol=1e-6)
+    np.testing.assert_allclose(np.cos(np.radians(az2 - az)), 1.0, atol=1e-9)
+
+
+def test_bad_spherical_inputs():
+    with pytest.raises(ValueError, match="elevation"):
+        pose_from_spherical(0.0, 91.0, 1.0)
+    with pytest.raises(ValueError, match="radius"):
+        pose_from_spherical(0.0, 0.0, 0.0)
+    with pytest.raises(ValueError, match="centre"):
+        spherical_from_pose(np.eye(4), center=(0, 0, 0))
+
+
+@pytest.mark.parametrize("dtype", DTYPES)
+def test_closest_point_to_axes(dtype):
+    rng = np.random.default_rng(4)
+    target = np.array([0.5, -1.0, 2.0])
+    eyes = target + rng.normal(size=(6, 3)) * 4
+    c2w = look_at(eyes, target).astype(dtype)
+    p = closest_point_to_axes(c2w)
+    assert p.shape == (3,) and p.dtype == dtype
+    np.testing.assert_allclose(p, target, atol=1e-9 if dtype == np.float64 else 1e-4)
+    # Two skew lines: x-axis through (0,0,0) and y-axis through (0,0,2): midpoint (0,0,1) by hand.
+    a = look_at([-5.0, 0.0, 0.0], [0.0, 0.0, 0.0])
+    b = look_at([0.0, -5.0, 2.0], [0.0, 0.0, 2.0])
+    np.testing.assert_allclose(closest_point_to_axes(np.stack([a, b])), [0, 0, 1], atol=1e-12)
+
+
+def test_closest_point_parallel_axes_raise():
+    c2w = look_at(np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0]]), np.array([[0.0, 0, 1], [1, 0, 1], [0, 1, 1]]))
+    with pytest.raises(ValueError, match="parallel"):
+        closest_point_to_axes(c2w)
+    with pytest.raises(ValueError, match="parallel"):
+        closest_point_to_axes(c2w[:1])
+
+
+def wrap(a):
+    return (np.asarray(a) + 180) % 360 - 180
+
+
+@pytest.mark.parametrize("dtype", DTYPES)
+def test_sample_pseudo_views(dtype):
+    center = np.array([0.1, 0.2, 0.3])
+    inputs = pose_from_spherical(np.array([0.0, 100.0, -150.0]), np.array([20.0, 89.5, -45.0]),
+                                 np.array([4.0, 3.0, 5.0]), center=center).astype(dtype)
+    c2w, src = sample_pseudo_views(inputs, 10.0, 30, np.random.default_rng(7), up=(0, 0, 1))
+    assert c2w.shape == (30, 4, 4) and c2w.dtype == dtype and src.dtype == np.int64
+    assert src.tolist() == [k % 3 for k in range(30)]
+    assert is_rigid(c2w, atol=1e-5).all()
+    # Default centre: the axes' meeting point.
+    az, el, r = spherical_from_pose(c2w.astype(np.float64), center, (0, 0, 1))
+    az0, el0, r0 = spherical_from_pose(inputs.astype(np.float64), center, (0, 0, 1))
+    tol = 1e-4 if dtype == np.float32 else 1e-8
+    assert (np.abs(wrap(az - az0[src])) <= 10 + tol).all()
+    assert (np.abs(el - el0[src]) <= 10 + tol).all()
+    assert (np.abs(el) <= 89.9 + tol).all()  # the view at 89.5 never crosses the pole
+    np.testing.assert_allclose(r, r0[src], rtol=1e-5)
+    np.testing.assert_allclose(c2w[:, :3, 2], (center - c2w[:, :3, 3]) / r[:, None], atol=1e-4)
+    # Deterministic for a seed, different for another.
+    again, _ = sample_pseudo_views(inputs, 10.0, 30, np.random.default_rng(7), up=(0, 0, 1))
+    np.testing.assert_array_equal(again, c2w)
+    other, _ = sample_pseudo_views(inputs, 10.0, 30, np.random.default_rng(8), up=(0, 0, 1))
+    assert not np.allclose(other, c2w)
+    # The offsets actually spread over the window.
+    assert np.abs(wrap(az - az0[src])).max() > 5
+
+
+def test_sample_pseudo_views_zero_offset_explicit_center_up_and_errors():
+    inputs = pose_from_spherical(np.array([30.0, 60.0]), 10.0, 4.0, up=(0, 1, 0))
+    c2w, src = sample_pseudo_views(inputs, 0.0, 4, np.random.default_rng(0), center=(0, 0, 0), up=(0, 1, 0))
+    np.testing.assert_allclose(c2w, inputs[src], atol=1e-12)
+    # Default up = normalized mean of the image-up axes (-y); at elevation 0 each one is exactly up = +y.
+    level = pose_from_spherical(np.array([30.0, 60.0, 150.0]), 0.0, 4.0, up=(0, 1, 0))
+    c2w, _ = sample_pseudo_views(level, 0.0, 3, np.random.default_rng(0))
+    np.testing.assert_allclose(c2w, level, atol=1e-9)
+    assert sample_pseudo_views(inputs, 5.0, 0, np.random.default_rng(0))[0].shape == (0, 4, 4)
+    with pytest.raises(ValueError, match="rng"):
+        sample_pseudo_views(inputs, 5.0, 2, 0)
+    with pytest.raises(ValueError, match="max_offset"):
+        sample_pseudo_views(inputs, -1.0, 2, np.random.default_rng(0))

@@ -1,0 +1,252 @@
+"""Tests of senerf/geometry/warp.py (reproject), against analytic scenes built here by ray casting."""
+
+import numpy as np
+import pytest
+from scipy import ndimage
+
+from senerf.geometry import Intrinsics, look_at, reproject
+
+DTYPES = [np.float32, np.float64]
+K = Intrinsics(200.0, 200.0, 64.0, 48.0, 128, 96)
+
+
+def camera_rays(k, c2w):
+    """World origins and directions whose camera-frame z component is 1 (so ray parameter = z-depth)."""
+    j, i = np.mgrid[0 : k.height, 0 : k.width]
+    pix = np.stack([i + 0.5, j + 0.5, np.ones_like(i, dtype=float)], -1)
+    d_cam = pix @ np.linalg.inv(k.K).T
+    return np.broadcast_to(c2w[:3, 3], d_cam.shape), d_cam @ c2w[:3, :3].T
+
+
+def plane_depth(k, c2w, n, d):
+    """z-depth of the plane n . X = d, inf where the ray misses it."""
+    o, dirs = camera_rays(k, c2w)
+    n = np.asarray(n, float)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = (d - o @ n) / (dirs @ n)
+    return np.where(np.isfinite(t) & (t > 0), t, np.inf)
+
+
+def box_depth(k, c2w, lo, hi):
+    """z-depth of the axis-aligned box [lo, hi] (slab method), inf where missed."""
+    o, dirs = camera_rays(k, c2w)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t1 = (np.asarray(lo) - o) / dirs
+        t2 = (np.asarray(hi) - o) / dirs
+    t_near = np.nanmax(np.minimum(t1, t2), axis=-1)
+    t_far = np.nanmin(np.maximum(t1, t2), axis=-1)
+    hit = (t_near <= t_far) & (t_near > 0)
+    return np.where(hit, t_near, np.inf)
+
+
+def homography(k_src, c2w_src, k_dst, c2w_dst, n, d):
+    """Plane-induced homography for the world plane n . X = d: H = K_dst (R + t n_c^T / d_c) K_src^-1.
+
+    With the plane written in the source camera frame as n_c . X = d_c (n_c = R_src^T n, d_c = d - n . o_src),
+    X_dst = R X + t = (R + t n_c^T / d_c) X on the plane (the textbook form K (R - t n^T / d) K^-1 uses
+    n^T X + d = 0, i.e. d -> -d_c).
+    """
+    n = np.asarray(n, float)
+    t_ds = np.linalg.inv(c2w_dst) @ c2w_src
+    n_c = c2w_src[:3, :3].T @ n
+    d_c = d - n @ c2w_src[:3, 3]
+    return k_dst.K @ (t_ds[:3, :3] + np.outer(t_ds[:3, 3], n_c) / d_c) @ np.linalg.inv(k_src.K)
+
+
+def apply_h(h, k):
+    j, i = np.mgrid[0 : k.height, 0 : k.width]
+    p = np.stack([i + 0.5, j + 0.5, np.ones(i.shape)], -1) @ h.T
+    return p[..., :2] / p[..., 2:]
+
+
+def in_image(uv, k):
+    return (uv[..., 0] >= 0) & (uv[..., 0] < k.width) & (uv[..., 1] >= 0) & (uv[..., 1] < k.height)
+
+
+@pytest.mark.parametrize("dtype", DTYPES)
+def test_plane_matches_homography(dtype):
+    n, d = np.array([0.1, -0.2, 1.0]) / np.linalg.norm([0.1, -0.2, 1.0]), -0.2
+    src = look_at([0.5, -3.0, 2.5], [0.0, 0.0, 0.0])
+    dst = look_at([-1.5, -2.5, 2.0], [0.2, 0.1, 0.0])
+    z_src = plane_depth(K, src, n, d)
+    assert np.isfinite(z_src).all()
+    uv, ok, z = reproject(z_src.astype(dtype), K, src, K, dst, return_z=True)
+    assert uv.dtype == dtype and uv.shape == (96, 128, 2) and ok.shape == (96, 128)
+    uv_ref = apply_h(homography(K, src, K, dst, n, d), K)
+    expect = in_image(uv_ref, K)
+    assert 0.3 < expect.mean() < 1.0  # part of the warp falls outside: both branches exercised
+    np.testing.assert_array_equal(ok, expect)
+    tol = 1e-7 if dtype == np.float64 else 2e-3
+    np.testing.assert_allclose(uv[ok], uv_ref[ok], atol=tol)
+    assert (uv[~ok] == -1).all() and (z[~ok] == 0).all()
+    # With the analytic destination depth, every correct warp passes the z-test and forward-backward check.
+    z_dst = plane_depth(K, dst, n, d).astype(dtype)
+    _, ok_z = reproject(z_src.astype(dtype), K, src, K, dst, z_depth_dst=z_dst)
+    np.testing.assert_array_equal(ok_z, expect)
+    _, ok_fb = reproject(z_src.astype(dtype), K, src, K, dst, z_depth_dst=z_dst, forward_backward=True)
+    np.testing.assert_array_equal(ok_fb, expect)
+    # A destination depth 5 % too far fails forward-backward (the back-projected depth is off by > 1 %).
+    _, ok_bad = reproject(z_src.astype(dtype), K, src, K, dst, z_depth_dst=z_dst * 1.05, forward_backward=True)
+    assert not ok_bad.any()
+
+
+@pytest.mark.parametrize("dtype", DTYPES)
+@pytest.mark.parametrize("angle", [80.0, 85.0, 89.0, 89.9])
+@pytest.mark.parametrize("grazing", ["dst", "src"])
+def test_grazing_plane_stays_valid(dtype, angle, grazing):
+    # Plane z = 0; one camera 1 unit above it looks at the plane at `angle` from the normal, the other looks
+    # straight down at the same spot from 3 + 4 tan(angle) units (wide enough to share many pixels with the
+    # oblique view).  Every geometrically correct warp must stay valid.
+    k = Intrinsics(500.0, 500.0, 64.0, 48.0, 128, 96)
+    spot = np.array([0.0, np.tan(np.radians(angle)), 0.0])
+    oblique = look_at([0.0, 0.0, 1.0], spot)
+    frontal = look_at(spot + [0, 0, 3.0 + 4.0 * spot[1]], spot, up=[0.0, 1.0, 0.0])
+    src, dst = (frontal, oblique) if grazing == "dst" else (oblique, frontal)
+    z_src = plane_depth(k, src, [0, 0, 1], 0.0)
+    z_dst = plane_depth(k, dst, [0, 0, 1], 0.0)
+    if grazing == "dst":
+        # The case is hard: adjacent destination rows differ by more than a fixed 1 % where the warps land.
+        fin = np.isfinite(z_dst[47:50, 64])
+        assert (np.abs(np.diff(z_dst[47:50, 64])) / z_dst[47:49, 64] > 0.01).any() and fin.all()
+    src_ok = np.isfinite(z_src)
+    z_src = np.where(src_ok, z_src, 0.0).astype(dtype)  # misses -> invalid source pixels
+    uv_plain, ok_plain = reproject(z_src, k, src, k, dst)
+    uv, ok = reproject(z_src, k, src, k, dst, z_depth_dst=z_dst.astype(dtype))
+    assert ok_plain.sum() > 50
+    np.testing.assert_array_equal(ok, ok_plain)
+
+
+@pytest.mark.parametrize("dtype", DTYPES)
+def test_occluding_box(dtype):
+    # A far plane z = 0 and a box floating above it; the destination sees the box hide part of the plane that
+    # the source sees.  Ground truth: a source point is hidden in dst when the dst ray to it hits the box first.
+    lo, hi = np.array([-0.3, -0.3, 0.5]), np.array([0.3, 0.3, 1.1])
+    src = look_at([2.5, -2.0, 3.0], [0.0, 0.0, 0.0])
+    dst = look_at([-0.5, -3.0, 3.0], [0.0, 0.0, 0.3])
+
+    def depth(c2w):
+        return np.minimum(plane_depth(K, c2w, [0, 0, 1], 0.0), box_depth(K, c2w, lo, hi))
+
+    z_src, z_dst = depth(src), depth(dst)
+    assert np.isfinite(z_src).all() and np.isfinite(z_dst).all()
+    o, dirs = camera_rays(K, src)
+    pts = o + dirs * z_src[..., None]
+    w2c = np.linalg.inv(dst)
+    cam = pts @ w2c[:3, :3].T + w2c[:3, 3]
+    z_true = cam[..., 2]
+    ray = cam / z_true[..., None]  # dst camera-frame ray with z = 1 through each point
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t1 = (lo - dst[:3, 3]) @ np.eye(3) / (ray @ dst[:3, :3].T)
+        t2 = (hi - dst[:3, 3]) / (ray @ dst[:3, :3].T)
+    t_near = np.nanmax(np.minimum(t1, t2), -1)
+    t_far = np.nanmin(np.maximum(t1, t2), -1)
+    hidden = (t_near <= t_far) & (t_near > 0) & (t_near < z_true * (1 - 1e-6))
+
+    uv_geo, ok_geo = reproject(z_src.astype(dtype), K, src, K, dst)
+    uv, ok = reproject(z_src.astype(dtype), K, src, K, dst, z_depth_dst=z_dst.astype(dtype))
+    occluded = ok_geo & hidden
+    visible = ok_geo & ~hidden
+    assert occluded.sum() > 300 and visible.sum() > 3000
+    assert ok[visible].all()  # no visible pixel is lost
+    # Occluded points landing 2+ px inside the box's dst silhouette are all flagged; overall >= 90 %.
+    box_dst = np.isfinite(box_depth(K, dst, lo, hi))
+    core = ndimage.binary_erosion(box_dst, iterations=2)
+    lands = core[np.clip(uv_geo[..., 1].astype(int), 0, 95), np.clip(uv_geo[..., 0].astype(int), 0, 127)]
+    assert not ok[occluded & lands].any()
+    assert (~ok[occluded]).mean() >= 0.9
+    # Forward-backward on top keeps the same decision for occluded pixels.
+    _, ok_fb = reproject(z_src.astype(dtype), K, src, K, dst, z_depth_dst=z_dst.astype(dtype), forward_backward=True)
+    assert not (ok_fb & ~ok).any() and not ok_fb[occluded & lands].any()
+
+
+def test_float32_far_from_origin():
+    # Scene offset 1e5: composing T_dst_src in float64 keeps float32 warps within 0.01 px of the exact
+    # homography, in both directions (a round trip src -> dst -> src).
+    off = np.array([1e5, 1e5, 1e5])
+    n, d = np.array([0.0, 0.0, 1.0]), 1e5
+    src = look_at(off + [0.5, -3.0, 2.5], off)
+    dst = look_at(off + [-1.5, -2.5, 2.0], off + [0.2, 0.1, 0.0])
+    for a, b in ((src, dst), (dst, src)):
+        z_a = plane_depth(K, a, n, d)
+        uv, ok = reproject(z_a.astype(np.float32), K, a, K, b)
+        uv_ref = apply_h(homography(K, a, K, b, n, d), K)
+        assert ok.sum() > 1000
+        assert np.abs(uv[ok] - uv_ref[ok]).max() < 0.01
+
+
+@pytest.mark.parametrize("scale", [1e-6, 1e6])
+def test_scale_invariance_extreme_depths(scale):
+    n, d = np.array([0.0, 0.0, 1.0]), 0.0
+    src = look_at([0.5, -3.0, 2.5], [0.0, 0.0, 0.0])
+    dst = look_at([-1.5, -2.5, 2.0], [0.2, 0.1, 0.0])
+    ref_uv, ref_ok = reproject(plane_depth(K, src, n, d), K, src, K, dst, z_depth_dst=plane_depth(K, dst, n, d))
+    s_src, s_dst = src.copy(), dst.copy()
+    s_src[:3, 3] *= scale
+    s_dst[:3, 3] *= scale
+    z_src = plane_depth(K, s_src, n, d)
+    assert 0.5 * scale < z_src.min() and z_src.max() < 10 * scale
+    uv, ok = reproject(z_src, K, s_src, K, s_dst, z_depth_dst=plane_depth(K, s_dst, n, d))
+    np.testing.assert_array_equal(ok, ref_ok)
+    np.testing.assert_allclose(uv, ref_uv, atol=1e-6)
+
+
+@pytest.mark.parametrize("dtype", DTYPES)
+def test_bad_source_depth_is_invalid_and_finite(dtype):
+    z = np.full((96, 128), 3.0)
+    z[0, :5] = [0.0, -1.0, np.nan, np.inf, -np.inf]
+    dst = np.eye(4)
+    dst[0, 3] = 0.3  # translated only: the plane z_depth = 3 has depth 3 in dst too
+    z_dst = np.full((96, 128), np.nan)
+    z_dst[10:] = 3.0
+    with np.errstate(all="raise"):
+        uv, ok, zd = reproject(z.astype(dtype), K, np.eye(4), K, dst, z_depth_dst=z_dst.astype(dtype),
+                               forward_backward=True, return_z=True)
+    assert not ok[0, :5].any() and ok[50, 50]
+    assert np.isfinite(uv).all() and np.isfinite(zd).all()
+
+
+def test_behind_destination_camera_is_invalid():
+    dst = look_at([0.0, 0.0, 6.0], [0.0, 0.0, 10.0])  # sits beyond the plane z_depth = 3, looking away
+    _, ok = reproject(np.full((96, 128), 3.0), K, np.eye(4), K, dst)
+    assert not ok.any()
+
+
+def test_tiny_images_and_batches():
+    k1 = Intrinsics(10.0, 10.0, 0.5, 0.5, 1, 1)
+    uv, ok = reproject(np.ones((1, 1)), k1, np.eye(4), k1, np.eye(4), z_depth_dst=np.ones((1, 1)),
+                       forward_backward=True)
+    assert ok.all() and uv[0, 0].tolist() == [0.5, 0.5]
+    k_row = Intrinsics(10.0, 10.0, 2.5, 0.5, 5, 1)
+    uv, ok = reproject(np.ones((1, 5)), k_row, np.eye(4), k_row, np.eye(4), z_depth_dst=np.ones((1, 5)))
+    assert ok.all()
+    dsts = look_at(np.array([[0.1, 0, 0], [0, 0.1, 0], [-0.1, 0, 0]]), np.array([0.0, 0.0, 3.0]))
+    z = np.full((96, 128), 3.0)
+    uv, ok = reproject(z, K, np.eye(4), K, dsts, z_depth_dst=np.full((3, 96, 128), 3.0))
+    assert uv.shape == (3, 96, 128, 2)
+    for i in range(3):
+        uv_i, ok_i = reproject(z, K, np.eye(4), K, dsts[i], z_depth_dst=np.full((96, 128), 3.0))
+        np.testing.assert_array_equal(uv[i], uv_i)
+        np.testing.assert_array_equal(ok[i], ok_i)
+    with pytest.raises(ValueError, match="z_depth_src"):
+        reproject(np.ones((5, 5)), K, np.eye(4), K, np.eye(4))
+    with pytest.raises(ValueError, match="z_depth_dst"):
+        reproject(z, K, np.eye(4), K, dsts, z_depth_dst=np.ones((96, 128)))
+    with pytest.raises(ValueError, match="forward_backward"):
+        reproject(z, K, np.eye(4), K, np.eye(4), forward_backward=True)
+
+
+def test_matches_unproject_then_project_random_scenes():
+    # Independent path: lift every pixel centre to the world with unproject, project into dst with project.
+    from senerf.geometry import pixel_centers, project, unproject
+
+    rng = np.random.default_rng(11)
+    for _ in range(5):
+        src = look_at(rng.normal(size=3) * 2 + [0, 0, -4], rng.normal(size=3) * 0.2)
+        dst = look_at(rng.normal(size=3) * 2 + [0, 0, -4], rng.normal(size=3) * 0.2)
+        z = rng.uniform(2.0, 6.0, size=(96, 128))
+        uv, ok, zd = reproject(z, K, src, K, dst, return_z=True)
+        uv_ref, z_ref, ok_ref = project(unproject(pixel_centers(K), z, K, src), K, dst)
+        np.testing.assert_array_equal(ok, ok_ref)
+        assert ok.mean() > 0.05
+        np.testing.assert_allclose(uv[ok], uv_ref[ok], atol=1e-8)
+        np.testing.assert_allclose(zd[ok], z_ref[ok], rtol=1e-10)
