@@ -30,16 +30,6 @@ def _positive_finite(value, name: str) -> float:
     return v
 
 
-def _finite(value, name: str) -> float:
-    try:
-        v = float(value)
-    except (TypeError, ValueError):
-        raise ValueError(f"Intrinsics.{name}: expected a real number, got {value!r}") from None
-    if not math.isfinite(v):
-        raise ValueError(f"Intrinsics.{name}: must be finite, got {value!r}")
-    return v
-
-
 def _size(value, name: str) -> int:
     if isinstance(value, (bool, np.bool_)):
         raise ValueError(f"Intrinsics.{name}: expected an integer >= 1, got {value!r}")
@@ -61,12 +51,13 @@ class Intrinsics:
     Args:
         fx, fy: focal lengths in pixels, positive and finite.
         cx, cy: principal point in pixels (pixel-centre-at-``i + 0.5`` convention, see module docstring);
-            finite, any sign (crops may move it outside the image).
+            positive and finite, as the issue specifies (a principal point on or beyond the image's top/left
+            edge is refused: it is almost always a convention error such as a negated or 0-based value).
         width, height: image size in pixels, integers ``>= 1``.
 
     Raises:
-        ValueError: naming the field, for non-positive / non-finite focal lengths or sizes, non-finite
-            principal points, and non-integer sizes.
+        ValueError: naming the field, for non-positive / non-finite focal lengths, principal points or
+            sizes, and non-integer sizes.
 
     Example:
         >>> k = Intrinsics(500.0, 500.0, 256.0, 256.0, 512, 512)
@@ -88,8 +79,8 @@ class Intrinsics:
     def __post_init__(self) -> None:
         object.__setattr__(self, "fx", _positive_finite(self.fx, "fx"))
         object.__setattr__(self, "fy", _positive_finite(self.fy, "fy"))
-        object.__setattr__(self, "cx", _finite(self.cx, "cx"))
-        object.__setattr__(self, "cy", _finite(self.cy, "cy"))
+        object.__setattr__(self, "cx", _positive_finite(self.cx, "cx"))
+        object.__setattr__(self, "cy", _positive_finite(self.cy, "cy"))
         object.__setattr__(self, "width", _size(self.width, "width"))
         object.__setattr__(self, "height", _size(self.height, "height"))
 

@@ -70,9 +70,10 @@ def test_bad_focal_raises_naming_field(field, bad):
 
 
 @pytest.mark.parametrize("field", ["cx", "cy"])
-def test_non_finite_principal_point_raises(field):
+@pytest.mark.parametrize("bad", [0.0, -3.0, float("nan"), float("-inf")])
+def test_bad_principal_point_raises(field, bad):
     args = dict(fx=500.0, fy=500.0, cx=1.0, cy=1.0, width=2, height=2)
-    args[field] = float("nan")
+    args[field] = bad
     with pytest.raises(ValueError, match=field):
         Intrinsics(**args)
 
