@@ -1,0 +1,136 @@
+/* Fused K-Planes plane interpolation (bilinear, align_corners=True) + Hadamard product, CPU.
+ *
+ * Compiled at first use by senerf/fields/ckernel.py with -DREAL=float|double and -DNF=<features per plane>
+ * (a compile-time feature count lets the compiler unroll and vectorise the feature loops); called through
+ * ctypes on a range [n0, n1) of points so that Python threads can split the work (ctypes drops the GIL).
+ *
+ * Layout (see interp.py): table (rows, NF) row-major; plane (s, p) of resolution r = res[s] starts at row
+ * offs[3 s + p]; texel (a, b) is row b * r + a; planes p = 0 xy, 1 xz, 2 yz.  u (N, 3) in [-1, 1].
+ * out (N, S * NF): out[n, s NF + f] = prod_p bilinear_p(f).
+ * Backward: gtable[row] += w_corner * gout[n, s NF + f] * prod_{q != p} bilinear_q(f); each caller owns its
+ * gtable buffer (no races).  Corner rows of point n + PD are prefetched while point n is processed (the
+ * planes are larger than the caches; the gathers are latency bound).
+ */
+#include <stdint.h>
+#include <math.h>
+
+#ifndef REAL
+#define REAL float
+#endif
+#ifndef NF
+#define NF 16
+#endif
+#define MAXS 8
+#define PD 8
+#define RING 16
+
+static const int PA[3] = {0, 0, 1};
+static const int PB[3] = {1, 2, 2};
+
+typedef struct {
+    int64_t row[MAXS][3];
+    REAL w[MAXS][3][4];
+} Corners;
+
+static inline void corners(const REAL *un, int64_t S, const int64_t *res, const int64_t *offs, Corners *c,
+                           int prefetch) {
+    for (int64_t s = 0; s < S; ++s) {
+        int64_t r = res[s];
+        REAL lim = (REAL)(r - 1);
+        for (int p = 0; p < 3; ++p) {
+            REAL xa = (un[PA[p]] + (REAL)1) * (REAL)0.5 * lim;
+            REAL xb = (un[PB[p]] + (REAL)1) * (REAL)0.5 * lim;
+            /* written so that NaN maps to 0: never an out-of-range row */
+            xa = xa >= 0 ? (xa <= lim ? xa : lim) : 0;
+            xb = xb >= 0 ? (xb <= lim ? xb : lim) : 0;
+            int64_t ia = (int64_t)xa, ib = (int64_t)xb;   /* >= 0, so truncation == floor */
+            if (ia > r - 2) ia = r - 2;
+            if (ib > r - 2) ib = r - 2;
+            REAL fa = xa - (REAL)ia, fb = xb - (REAL)ib;
+            int64_t row = (offs[3 * s + p] + ib * r + ia) * NF;
+            c->row[s][p] = row;
+            c->w[s][p][0] = (1 - fa) * (1 - fb);
+            c->w[s][p][1] = fa * (1 - fb);
+            c->w[s][p][2] = (1 - fa) * fb;
+            c->w[s][p][3] = fa * fb;
+            (void)prefetch;
+        }
+    }
+}
+
+static inline void prefetch_rows(const REAL *base, const Corners *c, int64_t S, const int64_t *res, int rw) {
+    for (int64_t s = 0; s < S; ++s)
+        for (int p = 0; p < 3; ++p) {
+            const REAL *t = base + c->row[s][p];
+            __builtin_prefetch(t, rw, 1);
+            __builtin_prefetch(t + NF, rw, 1);
+            __builtin_prefetch(t + res[s] * NF, rw, 1);
+            __builtin_prefetch(t + res[s] * NF + NF, rw, 1);
+        }
+}
+
+static inline void blend(const REAL *restrict table, int64_t row, int64_t r, const REAL *w, REAL *restrict v) {
+    const REAL *restrict t00 = table + row, *restrict t01 = t00 + NF, *restrict t10 = t00 + r * NF,
+               *restrict t11 = t10 + NF;
+    for (int f = 0; f < NF; ++f)
+        v[f] = w[0] * t00[f] + w[1] * t01[f] + w[2] * t10[f] + w[3] * t11[f];
+}
+
+int kp_nf(void) { return NF; }
+int kp_maxs(void) { return MAXS; }
+
+void kp_forward(const REAL *u, const REAL *table, int64_t n0, int64_t n1, int64_t S, const int64_t *res,
+                const int64_t *offs, REAL *out) {
+    Corners ring[RING];
+    for (int64_t k = n0; k < n1 && k < n0 + PD; ++k) corners(u + 3 * k, S, res, offs, &ring[k % RING], 0);
+    for (int64_t n = n0; n < n1; ++n) {
+        if (n + PD < n1) {
+            Corners *nx = &ring[(n + PD) % RING];
+            corners(u + 3 * (n + PD), S, res, offs, nx, 1);
+            prefetch_rows(table, nx, S, res, 0);
+        }
+        const Corners *c = &ring[n % RING];
+        for (int64_t s = 0; s < S; ++s) {
+            REAL *restrict o = out + (n * S + s) * NF;
+            REAL v0[NF], v1[NF], v2[NF];
+            blend(table, c->row[s][0], res[s], c->w[s][0], v0);
+            blend(table, c->row[s][1], res[s], c->w[s][1], v1);
+            blend(table, c->row[s][2], res[s], c->w[s][2], v2);
+            for (int f = 0; f < NF; ++f) o[f] = v0[f] * v1[f] * v2[f];
+        }
+    }
+}
+
+void kp_backward(const REAL *u, const REAL *table, int64_t n0, int64_t n1, int64_t S, const int64_t *res,
+                 const int64_t *offs, const REAL *gout, REAL *gtable) {
+    Corners ring[RING];
+    for (int64_t k = n0; k < n1 && k < n0 + PD; ++k) corners(u + 3 * k, S, res, offs, &ring[k % RING], 0);
+    for (int64_t n = n0; n < n1; ++n) {
+        if (n + PD < n1) {
+            Corners *nx = &ring[(n + PD) % RING];
+            corners(u + 3 * (n + PD), S, res, offs, nx, 1);
+            prefetch_rows(table, nx, S, res, 0);
+            prefetch_rows(gtable, nx, S, res, 1);
+        }
+        const Corners *c = &ring[n % RING];
+        for (int64_t s = 0; s < S; ++s) {
+            const REAL *restrict g = gout + (n * S + s) * NF;
+            int64_t r = res[s];
+            REAL feat[3][NF];
+            for (int p = 0; p < 3; ++p) blend(table, c->row[s][p], r, c->w[s][p], feat[p]);
+            for (int p = 0; p < 3; ++p) {
+                const REAL *q1 = feat[(p + 1) % 3], *q2 = feat[(p + 2) % 3];
+                const REAL *w = c->w[s][p];
+                REAL *restrict g00 = gtable + c->row[s][p], *restrict g01 = g00 + NF,
+                     *restrict g10 = g00 + r * NF, *restrict g11 = g10 + NF;
+                for (int f = 0; f < NF; ++f) {
+                    REAL gp = g[f] * q1[f] * q2[f];
+                    g00[f] += w[0] * gp;
+                    g01[f] += w[1] * gp;
+                    g10[f] += w[2] * gp;
+                    g11[f] += w[3] * gp;
+                }
+            }
+        }
+    }
+}

@@ -1,0 +1,107 @@
+"""The interface every radiance field satisfies, and small shared helpers.
+
+A field maps world (or NDC) points ``xyz (N, 3)`` and unit view directions ``dirs (N, 3)`` to a
+non-negative density ``sigma (N,)`` and a colour ``rgb (N, 3)`` in [0, 1].  Self-training queries a
+teacher's :meth:`RadianceField.density` at arbitrary points, the renderer calls :meth:`forward`,
+the trainer adds :meth:`regularizer` to its loss.
+"""
+
+from __future__ import annotations
+
+import torch
+from torch import nn
+
+__all__ = ["RadianceField", "trunc_exp", "check_points", "normalize_aabb", "as_aabb"]
+
+
+class RadianceField(nn.Module):
+    """Base class: ``density(xyz)``, ``forward(xyz, dirs)``, ``regularizer()``.
+
+    Subclasses implement :meth:`density` and :meth:`forward`; :meth:`regularizer` defaults to zero.
+    """
+
+    def density(self, xyz: torch.Tensor) -> torch.Tensor:
+        """Density at points.
+
+        Args:
+            xyz: ``(N, 3)`` points.
+        Returns:
+            sigma ``(N,)``, non-negative, finite.
+        """
+        raise NotImplementedError
+
+    def forward(self, xyz: torch.Tensor, dirs: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Density and colour.
+
+        Args:
+            xyz: ``(N, 3)`` points.
+            dirs: ``(N, 3)`` unit view directions (ignored by view-independent fields).
+        Returns:
+            ``(sigma (N,), rgb (N, 3))``.
+        """
+        raise NotImplementedError
+
+    def regularizer(self) -> torch.Tensor:
+        """Scalar regulariser to add to the loss (0 when the field has none)."""
+        p = next(self.parameters(), None)
+        return torch.zeros((), device=None if p is None else p.device)
+
+
+class _TruncExp(torch.autograd.Function):
+    """``exp(min(x, 15))`` forward; gradient ``exp(clamp(x, -15, 15))`` (straight through above 15)."""
+
+    @staticmethod
+    def forward(ctx, x):
+        ctx.save_for_backward(x)
+        return torch.exp(x.clamp(max=15.0))
+
+    @staticmethod
+    def backward(ctx, g):
+        (x,) = ctx.saved_tensors
+        return g * torch.exp(x.clamp(-15.0, 15.0))
+
+
+def trunc_exp(x: torch.Tensor) -> torch.Tensor:
+    """Truncated exponential density activation (K-Planes / instant-NGP): finite value and gradient.
+
+    Args:
+        x: any shape.
+    Returns:
+        ``exp(min(x, 15))``, same shape; its gradient is ``exp(clamp(x, -15, 15))``.
+    """
+    return _TruncExp.apply(x)
+
+
+def as_aabb(aabb) -> torch.Tensor:
+    """``aabb`` as a float32 ``(2, 3)`` tensor ``[[xmin, ymin, zmin], [xmax, ymax, zmax]]``; checks min < max."""
+    box = torch.as_tensor(aabb, dtype=torch.float32).detach().clone()
+    if box.shape != (2, 3):
+        raise ValueError(f"aabb: expected shape (2, 3), got {tuple(box.shape)}")
+    if not bool((box[1] > box[0]).all()):
+        raise ValueError(f"aabb: every max must exceed its min, got {box.tolist()}")
+    return box
+
+
+def check_points(xyz: torch.Tensor, name: str = "xyz") -> None:
+    """Raise ``ValueError`` unless ``xyz`` is a floating ``(N, 3)`` tensor."""
+    if not isinstance(xyz, torch.Tensor) or xyz.ndim != 2 or xyz.shape[1] != 3:
+        shape = tuple(xyz.shape) if isinstance(xyz, torch.Tensor) else type(xyz).__name__
+        raise ValueError(f"{name}: expected a tensor of shape (N, 3), got {shape}")
+    if not xyz.is_floating_point():
+        raise ValueError(f"{name}: expected a floating tensor, got {xyz.dtype}")
+
+
+def normalize_aabb(xyz: torch.Tensor, aabb: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """Map points of the box to ``[-1, 1]^3``.
+
+    Args:
+        xyz: ``(N, 3)`` points.
+        aabb: ``(2, 3)`` box.
+    Returns:
+        ``(u (N, 3), inside (N,) bool)``; ``u`` is *not* clamped, ``inside`` means all ``|u| <= 1``.
+    """
+    lo = aabb[0].to(xyz)
+    hi = aabb[1].to(xyz)
+    u = (xyz - lo) * (2.0 / (hi - lo)) - 1.0
+    inside = (u.abs() <= 1.0).all(dim=-1)
+    return u, inside

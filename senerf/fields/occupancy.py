@@ -1,0 +1,87 @@
+"""Occupancy grid for empty-space skipping (instant-NGP style, small enough to update on CPU)."""
+
+from __future__ import annotations
+
+import torch
+from torch import nn
+
+from .base import as_aabb, check_points, normalize_aabb
+
+__all__ = ["OccupancyGrid"]
+
+
+class OccupancyGrid(nn.Module):
+    """A ``res^3`` grid of density estimates over an AABB with a binary occupancy mask.
+
+    ``update(field)`` evaluates ``field.density`` at one point per cell (the centre, or jittered inside
+    the cell when a generator is given) and keeps ``density = max(decay * density, new)`` (a decaying
+    maximum, as instant-NGP); a cell is occupied while its estimate, or that of a cell up to ``dilate`` cells
+    away (3D max filter), exceeds ``threshold``: the dilation keeps cells that a surface crosses although
+    their sample point lies just outside it.  A fresh grid
+    is fully occupied, so rendering with it equals rendering without it until the first update.
+    Points outside the AABB are never occupied.
+
+    Args:
+        aabb: ``(2, 3)`` box.
+        resolution: cells per side.
+        threshold: density above which a cell is occupied.
+        decay: multiplier of the old estimate at each update (0 = forget, use only the newest density).
+        dilate: cells of dilation of the binary mask (0 = none).
+    """
+
+    def __init__(self, aabb, resolution: int = 64, threshold: float = 0.01, decay: float = 0.95,
+                 dilate: int = 1):
+        super().__init__()
+        if resolution < 1:
+            raise ValueError(f"resolution: expected >= 1, got {resolution}")
+        self.resolution = int(resolution)
+        self.threshold = float(threshold)
+        self.decay = float(decay)
+        self.dilate = int(dilate)
+        self.register_buffer("aabb", as_aabb(aabb))
+        n = self.resolution ** 3
+        self.register_buffer("density_grid", torch.full((n,), float("inf")))
+        self.register_buffer("mask", torch.ones(n, dtype=torch.bool))
+
+    def cell_centers(self) -> torch.Tensor:
+        """``(res^3, 3)`` world centres of the cells, flat index ``(i * res + j) * res + k`` for x, y, z."""
+        r = self.resolution
+        c = (torch.arange(r, dtype=torch.float32, device=self.aabb.device) + 0.5) / r
+        g = torch.stack(torch.meshgrid(c, c, c, indexing="ij"), dim=-1).reshape(-1, 3)
+        return self.aabb[0] + g * (self.aabb[1] - self.aabb[0])
+
+    @torch.no_grad()
+    def update(self, field, generator: torch.Generator | None = None, chunk: int = 65536) -> float:
+        """Refresh the estimates from ``field.density``; returns the occupied fraction.
+
+        Args:
+            field: anything with ``density(xyz (N, 3)) -> (N,)``.
+            generator: if given, one uniformly jittered point per cell instead of the centre.
+        """
+        pts = self.cell_centers()
+        if generator is not None:
+            size = (self.aabb[1] - self.aabb[0]) / self.resolution
+            jit = torch.rand(pts.shape, generator=generator, device=pts.device) - 0.5
+            pts = pts + jit * size
+        new = torch.cat([field.density(pts[s:s + chunk]).float() for s in range(0, pts.shape[0], chunk)])
+        old = torch.where(torch.isinf(self.density_grid), torch.zeros_like(new), self.density_grid * self.decay)
+        self.density_grid.copy_(torch.maximum(old, new))
+        occ = (self.density_grid > self.threshold).float().view(1, 1, *(self.resolution,) * 3)
+        if self.dilate > 0:
+            k = 2 * self.dilate + 1
+            occ = torch.nn.functional.max_pool3d(occ, k, stride=1, padding=self.dilate)
+        self.mask.copy_(occ.reshape(-1) > 0.5)
+        return self.occupied_fraction()
+
+    def occupied_fraction(self) -> float:
+        """Fraction of occupied cells."""
+        return float(self.mask.float().mean())
+
+    def is_occupied(self, xyz: torch.Tensor) -> torch.Tensor:
+        """``(N,)`` bool: the cell containing each point of ``xyz (N, 3)`` is occupied (False outside)."""
+        check_points(xyz)
+        u, inside = normalize_aabb(xyz, self.aabb)
+        r = self.resolution
+        ijk = ((u + 1.0) * (0.5 * r)).floor().long().clamp(0, r - 1)
+        flat = (ijk[:, 0] * r + ijk[:, 1]) * r + ijk[:, 2]
+        return self.mask[flat] & inside

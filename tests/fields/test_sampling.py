@@ -1,0 +1,74 @@
+import numpy as np
+import pytest
+import torch
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from senerf.fields import ndc_rays, ndc_t_to_depth, stratified_bins
+
+
+@settings(max_examples=30, deadline=None)
+@given(seed=st.integers(0, 2**31 - 1), n_bins=st.integers(1, 64))
+def test_stratified_points_lie_in_their_bins(seed, n_bins):
+    gen = torch.Generator().manual_seed(seed)
+    near = torch.rand(50, generator=gen, dtype=torch.float64) * 3
+    far = near + torch.rand(50, generator=gen, dtype=torch.float64) * 5 + 1e-3
+    t = stratified_bins(near, far, n_bins, gen)
+    k = torch.arange(n_bins, dtype=torch.float64)
+    lo = near[:, None] + k * (far - near)[:, None] / n_bins
+    hi = near[:, None] + (k + 1) * (far - near)[:, None] / n_bins
+    assert t.shape == (50, n_bins)
+    assert (t >= lo - 1e-12).all() and (t <= hi + 1e-12).all()
+
+
+def test_stratified_deterministic_per_seed_and_centres():
+    near, far = torch.full((8,), 2.0), torch.full((8,), 6.0)
+    a = stratified_bins(near, far, 16, torch.Generator().manual_seed(11))
+    b = stratified_bins(near, far, 16, torch.Generator().manual_seed(11))
+    c = stratified_bins(near, far, 16, torch.Generator().manual_seed(12))
+    assert torch.equal(a, b) and not torch.equal(a, c)
+    mid = stratified_bins(near, far, 16, None, randomized=False)
+    np.testing.assert_allclose(mid[0].numpy(), 2.0 + (np.arange(16) + 0.5) * 0.25, rtol=1e-6)
+    # the per-bin offsets are spread over the bin: in 8 x 16 draws some fall in each half
+    frac = ((a - 2.0) / 0.25) % 1.0
+    assert (frac < 0.5).any() and (frac > 0.5).any()
+    with pytest.raises(ValueError):
+        stratified_bins(near, far, 16, None)
+
+
+def _ndc_of_point(p, fx, fy, w, h, near):
+    # the projective map itself, written independently: (ax X/Z, ay Y/Z, 1 - 2 near / Z)
+    return torch.stack([2 * fx / w * p[:, 0] / p[:, 2], 2 * fy / h * p[:, 1] / p[:, 2], 1 - 2 * near / p[:, 2]], -1)
+
+
+def test_ndc_depth_and_straight_rays():
+    gen = torch.Generator().manual_seed(0)
+    fx, fy, w, h, near = 400.0, 380.0, 504.0, 378.0, 1.0
+    n = 200
+    o = torch.randn(n, 3, generator=gen, dtype=torch.float64) * 0.3
+    d = torch.nn.functional.normalize(torch.randn(n, 3, generator=gen, dtype=torch.float64) * 0.3
+                                      + torch.tensor([0.0, 0.0, 1.0], dtype=torch.float64), dim=-1)
+    o_ndc, d_ndc = ndc_rays(o, d, fx, fy, w, h, near)
+    # the origin lands on the near plane (NDC z = -1)
+    np.testing.assert_allclose(o_ndc[:, 2].numpy(), -1.0, atol=1e-12)
+    for depth in (1.0, 1.7, 4.0, 50.0):
+        s = (depth - o[:, 2]) / d[:, 2]                  # world point at camera depth `depth`
+        p = o + s[:, None] * d
+        t_ndc = 1.0 - near / depth
+        np.testing.assert_allclose((o_ndc + t_ndc * d_ndc).numpy(), _ndc_of_point(p, fx, fy, w, h, near).numpy(),
+                                   rtol=1e-9, atol=1e-9)
+        np.testing.assert_allclose(ndc_t_to_depth(torch.tensor(t_ndc, dtype=torch.float64), near).item(), depth, rtol=1e-12)
+
+
+def test_ndc_xy_is_normalised_pixel_coordinate():
+    # a pinhole ray through pixel (u, v), principal point at the centre: NDC x = (u - W/2) / (W/2) at any t
+    fx, fy, w, h = 300.0, 300.0, 64.0, 48.0
+    uv = torch.tensor([[0.5, 0.5], [32.0, 24.0], [63.5, 10.25]], dtype=torch.float64)
+    d = torch.stack([(uv[:, 0] - w / 2) / fx, (uv[:, 1] - h / 2) / fy, torch.ones(3, dtype=torch.float64)], -1)
+    o_ndc, d_ndc = ndc_rays(torch.zeros(3, 3, dtype=torch.float64), d, fx, fy, w, h, near=0.5)
+    for t in (0.0, 0.3, 0.99):
+        p = o_ndc + t * d_ndc
+        np.testing.assert_allclose(p[:, 0].numpy(), ((uv[:, 0] - w / 2) / (w / 2)).numpy(), atol=1e-12)
+        np.testing.assert_allclose(p[:, 1].numpy(), ((uv[:, 1] - h / 2) / (h / 2)).numpy(), atol=1e-12)
+    with pytest.raises(ValueError):
+        ndc_rays(torch.zeros(3, 2), d, fx, fy, w, h)
