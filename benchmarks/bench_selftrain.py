@@ -1,0 +1,169 @@
+"""Self-training benchmarks on lego Extreme (views 0, 1, 51 of the train split) at 100 x 100.
+
+``masks``: train a short baseline teacher, use held-out train-split poses (the ``--n-eval`` nearest in angle
+to the known views) as pseudo views with ground truth, and report precision / recall / false-positive rate
+of our reliable masks against masks from ground-truth colour (``mean |C_T - C_gt| < --max-error``), per
+feature extractor and threshold kind (paper: precision 98.03 %, recall 92.25 %).
+
+``e2e``: the whole self-training run (``--iterations``, default 3) and a baseline trained for the run's
+whole step budget (``(iterations + 1) x steps``); reports test PSNR per iteration, gains and wall time
+(target: final >= iteration 0 + 1.5 dB and >= long baseline + 1.0 dB, whole run <= 15 min on 2 cores).
+
+Usage::
+
+    python benchmarks/bench_selftrain.py masks --steps 600 --out /tmp/bench_st_masks
+    python benchmarks/bench_selftrain.py e2e --steps 600 --iterations 3 --out /tmp/bench_st_e2e
+
+Results are printed and written to ``OUT/bench_<mode>.json``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+
+REPO = Path(__file__).resolve().parents[1]
+DATA = Path(os.environ.get("SENERF_DATA", REPO.parent / "shared" / "data"))
+
+
+def _load(args):
+    from senerf.data import fewshot_split, load_scene
+    from senerf.train import choose_model, preset_train_config
+
+    scene = load_scene(DATA / "nerf_synthetic" / "lego", downscale=args.downscale)
+    train_idx, test_idx = fewshot_split(scene, "extreme")
+    test_idx = test_idx[:: args.test_stride]
+    model = choose_model(scene, train_idx)
+    over = {} if args.batch_rays is None else {"batch_rays": args.batch_rays}
+    tcfg = preset_train_config(args.preset, steps=args.steps, seed=args.seed, **over)
+    return scene, train_idx, test_idx, model, tcfg
+
+
+def _nearest_held_out(scene, train_idx, n: int) -> np.ndarray:
+    """Held-out train-split views whose camera direction is closest (in angle) to a known view's."""
+    from senerf import geometry
+
+    known = np.asarray(scene.c2w[train_idx])
+    centre = geometry.closest_point_to_axes(known)
+    cand = np.setdiff1d(scene.splits["train"], train_idx)
+    dirs = lambda c: (c[:, :3, 3] - centre) / np.linalg.norm(c[:, :3, 3] - centre, axis=1, keepdims=True)  # noqa
+    cos = dirs(np.asarray(scene.c2w[cand])) @ dirs(known).T
+    angle = np.degrees(np.arccos(np.clip(cos.max(axis=1), -1, 1)))
+    order = np.argsort(angle)[:n]
+    return cand[order], angle[order]
+
+
+def bench_masks(args) -> dict:
+    from senerf.selftrain import SelfTrainConfig, make_feature_extractor, reliability_mask_quality
+    from senerf.selftrain.controller import known_images
+    from senerf.train import RayBatchSource, build_field, evaluate, render_views, train_field
+
+    scene, train_idx, test_idx, model, tcfg = _load(args)
+    out = Path(args.out)
+    t0 = time.perf_counter()
+    rays = RayBatchSource.from_scene(scene, train_idx, model, tcfg.device)
+    res = train_field(build_field(model, seed=tcfg.seed, steps=tcfg.steps), rays, tcfg,
+                      checkpoint=out / "teacher_train.pt", progress=False)
+    teacher, occ = res.field, res.occupancy
+    t_train = time.perf_counter() - t0
+    ev = evaluate(teacher, scene, test_idx, None, model, occupancy=occ, progress=False)
+    eval_idx, angles = _nearest_held_out(scene, train_idx, args.n_eval)
+    t_r = time.perf_counter()
+    renders = (render_views(teacher, model, scene.intrinsics, scene.c2w[train_idx], occupancy=occ),
+               render_views(teacher, model, scene.intrinsics, scene.c2w[eval_idx], occupancy=occ))
+    t_render = time.perf_counter() - t_r
+    print(f"teacher: {tcfg.steps} steps in {t_train:.0f} s, test PSNR {ev['psnr']:.2f} dB on {len(test_idx)} views; "
+          f"{len(eval_idx)} held-out poses {angles.min():.1f} - {angles.max():.1f} deg from the nearest input, "
+          f"rendered in {t_render:.0f} s")
+    rows = []
+    extractors = [("vgg19", dict(normalize_layers=True)), ("vgg19", dict(normalize_layers=False)), ("daisy", {})]
+    thresholds = [("adaptive", {}), ("fixed", {}), ("unified", {})]
+    for name, kw in extractors:
+        ext = make_feature_extractor(name, **kw)
+        label = name + ("" if name != "vgg19" else ("-norm" if kw["normalize_layers"] else "-concat"))
+        feats = ext(known_images(scene, train_idx, model))
+        for kind, _ in thresholds:
+            cfg = SelfTrainConfig(features=name, threshold=kind,
+                                  normalize_layers=kw.get("normalize_layers", True))
+            t1 = time.perf_counter()
+            q, labels = reliability_mask_quality(teacher, occ, model, scene, train_idx, eval_idx, ext, cfg,
+                                                 cfg.alpha(1), max_error=args.max_error, known_features=feats,
+                                                 renders=renders)
+            row = dict(features=label, threshold=kind, tau=labels.tau, seconds=time.perf_counter() - t1,
+                       **{k: (float(v) if isinstance(v, (float, np.floating)) else v) for k, v in q.items()})
+            rows.append(row)
+            print(f"{label:13s} {kind:9s} tau={'soft' if labels.tau is None else f'{labels.tau:.3f}':>6s} "
+                  f"precision {100 * q['precision']:.2f} % recall {100 * q['recall']:.2f} % "
+                  f"FPR {100 * q['fpr']:.2f} %  predicted-reliable {100 * q['predicted_reliable_rate']:.1f} % "
+                  f"(GT-reliable rate {100 * q['gt_reliable_rate']:.1f} %)")
+    return dict(mode="masks", steps=tcfg.steps, batch_rays=tcfg.batch_rays, teacher_psnr=ev["psnr"],
+                teacher_seconds=t_train,
+                eval_views=[int(i) for i in eval_idx], eval_angles_deg=[float(a) for a in angles],
+                max_error=args.max_error, rows=rows)
+
+
+def bench_e2e(args) -> dict:
+    from senerf.selftrain import SelfTrainConfig, run_selftraining
+    from senerf.train import RayBatchSource, build_field, evaluate, train_field
+
+    scene, train_idx, test_idx, model, tcfg = _load(args)
+    out = Path(args.out)
+    cfg = SelfTrainConfig(iterations=args.iterations, features=args.features, threshold=args.threshold,
+                          n_pseudo_per_input=args.n_pseudo, seed=args.seed)
+    t0 = time.perf_counter()
+    metrics = run_selftraining(scene, train_idx, test_idx, model, tcfg, cfg, out / "selftrain",
+                               command=sys.argv, progress=False)
+    t_run = time.perf_counter() - t0
+    psnrs = [it["psnr"] for it in metrics["iterations"]]
+    print("self-training PSNR per iteration:", " ".join(f"{p:.2f}" for p in psnrs), f"({t_run:.0f} s)")
+    long_cfg = tcfg.__class__(**{**tcfg.__dict__, "steps": tcfg.steps * (args.iterations + 1)})
+    t1 = time.perf_counter()
+    rays = RayBatchSource.from_scene(scene, train_idx, model, tcfg.device)
+    res = train_field(build_field(model, seed=tcfg.seed, steps=long_cfg.steps), rays, long_cfg,
+                      checkpoint=out / "long_baseline.pt", progress=False)
+    ev = evaluate(res.field, scene, test_idx, None, model, occupancy=res.occupancy, progress=False)
+    t_long = time.perf_counter() - t1
+    print(f"long baseline ({long_cfg.steps} steps): PSNR {ev['psnr']:.2f} ({t_long:.0f} s)")
+    print(f"final - iteration 0: {psnrs[-1] - psnrs[0]:+.2f} dB; "
+          f"final - long baseline: {psnrs[-1] - ev['psnr']:+.2f} dB")
+    return dict(mode="e2e", steps=tcfg.steps, batch_rays=tcfg.batch_rays, iterations=args.iterations,
+                psnr_per_iteration=psnrs,
+                reliable_fraction=[it["reliable_fraction"] for it in metrics["iterations"]],
+                run_seconds=t_run, long_baseline_steps=long_cfg.steps, long_baseline_psnr=ev["psnr"],
+                long_baseline_seconds=t_long, n_test_views=len(test_idx))
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("mode", choices=("masks", "e2e"))
+    p.add_argument("--out", default="/tmp/bench_selftrain")
+    p.add_argument("--steps", type=int, default=600)
+    p.add_argument("--preset", default="fast")
+    p.add_argument("--batch-rays", type=int, default=None, help="override the preset's rays per step")
+    p.add_argument("--downscale", type=float, default=4.0, help="400 px files / 4 = 100 x 100")
+    p.add_argument("--test-stride", type=int, default=8, help="evaluate every k-th test view")
+    p.add_argument("--n-eval", type=int, default=12, help="masks: held-out poses used as pseudo views")
+    p.add_argument("--max-error", type=float, default=0.1, help="masks: GT-reliable if mean |dRGB| below")
+    p.add_argument("--iterations", type=int, default=3)
+    p.add_argument("--n-pseudo", type=int, default=8, help="e2e: pseudo views per input view")
+    p.add_argument("--features", default="vgg19")
+    p.add_argument("--threshold", default="adaptive")
+    p.add_argument("--seed", type=int, default=0)
+    args = p.parse_args(argv)
+    torch.set_num_threads(max(1, os.cpu_count() or 1))
+    Path(args.out).mkdir(parents=True, exist_ok=True)
+    result = bench_masks(args) if args.mode == "masks" else bench_e2e(args)
+    result["argv"] = sys.argv
+    (Path(args.out) / f"bench_{args.mode}.json").write_text(json.dumps(result, indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

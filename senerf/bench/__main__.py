@@ -1,0 +1,7 @@
+"""``python -m senerf.bench`` = ``senerf-bench``."""
+
+import sys
+
+from .cli import main
+
+sys.exit(main())

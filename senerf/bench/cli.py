@@ -1,0 +1,218 @@
+"""``senerf-bench``: run, summarize, report and plot benchmarks.
+
+Examples::
+
+    senerf-bench run --scenes data/nerf_synthetic/lego --protocols synthetic-extreme3@100 \\
+        --methods baseline senerf --presets fast balanced --seeds 0 1 2 --workers 2 --out bench/
+    senerf-bench run ... --ray-address auto          # same runs on an existing Ray cluster
+    senerf-bench summarize bench/results.jsonl
+    senerf-bench report bench/results.jsonl --out BENCHMARKS-section.md
+    senerf-bench plot bench/results.jsonl --out-dir bench/plots
+    senerf-bench angles bench/results.jsonl --scene data/nerf_synthetic/lego --protocol synthetic-extreme3@100
+
+Exit status: 0 ok, 1 when some run failed (its line is in the results file; rerun to retry it), 2 bad input.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import shlex
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from senerf.errors import InputError
+
+from .execute import RunnerConfig
+from .executors import make_executor
+from .plots import line_view_angles, plot_frontier, plot_iterations, plot_psnr_vs_angle
+from .protocols import METHODS, parse_protocol
+from .report import make_report
+from .results import latest_ok_lines, load_results
+from .runner import pending_specs, run_benchmark
+from .specs import PRESETS, expand_specs
+from .summary import aggregate, final_iterations, format_table, preset_label
+
+__all__ = ["main", "build_parser"]
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The argument parser (subcommands ``run``, ``summarize``, ``report``, ``plot``, ``angles``)."""
+    parser = argparse.ArgumentParser(prog="senerf-bench", description=__doc__.split("\n\n")[0])
+    sub = parser.add_subparsers(dest="command", required=True)
+
+    run = sub.add_parser("run", help="run the grid scenes x protocols x methods x presets x seeds (resumable)")
+    run.add_argument("--scenes", nargs="+", required=True, help="scene folders (Blender or LLFF)")
+    run.add_argument("--protocols", nargs="+", default=["synthetic-extreme3@100"],
+                     help="FAMILY@RES, e.g. synthetic-extreme3@100 synthetic-infonerf4@200 "
+                          "synthetic-random8@400 llff3@504x378")
+    run.add_argument("--methods", nargs="+", default=["baseline", "senerf"], help=", ".join(METHODS))
+    run.add_argument("--presets", nargs="+", default=["fast"], help=", ".join(PRESETS))
+    run.add_argument("--seeds", nargs="+", type=int, default=[0])
+    run.add_argument("--iterations", type=int, default=3, help="self-training rounds K (default 3)")
+    run.add_argument("--steps", type=int, default=None, help="override the preset's --steps")
+    run.add_argument("--device", choices=["cpu", "cuda"], default="cpu")
+    run.add_argument("--out", default="bench_out", help="output folder (results.jsonl, runs/)")
+    run.add_argument("--results", default=None, help="results file (default OUT/results.jsonl)")
+    run.add_argument("--workers", type=int, default=1, help="concurrent local runs (default 1)")
+    run.add_argument("--threads", type=int, default=None,
+                     help="torch/OpenMP threads per run (default: usable cores // workers; Ray: --cpus-per-run)")
+    run.add_argument("--ray-address", default=None, help="run on this Ray cluster ('auto', 'ray://h:10001')")
+    run.add_argument("--cpus-per-run", type=float, default=1.0, help="CPUs Ray reserves per run")
+    run.add_argument("--timeout", type=float, default=None, help="seconds per run before it is killed")
+    run.add_argument("--fit-command", default=None,
+                     help="program replacing senerf-fit (shell-quoted string; for tests and wrappers)")
+    run.add_argument("--dry-run", action="store_true", help="print the pending fit commands, run nothing")
+
+    summ = sub.add_parser("summarize", help="print mean ± std over seeds")
+    summ.add_argument("results")
+    summ.add_argument("--final", action="store_true", help="only each run's last iteration")
+    summ.add_argument("--markdown", action="store_true")
+
+    rep = sub.add_parser("report", help="markdown section with the paper's numbers beside ours")
+    rep.add_argument("results")
+    rep.add_argument("--out", default=None, help="write here (default: stdout)")
+    rep.add_argument("--title", default="Benchmarks")
+
+    plot = sub.add_parser("plot", help="PNG plots: frontier (PSNR vs seconds / memory) and per iteration")
+    plot.add_argument("results")
+    plot.add_argument("--out-dir", default="bench_plots")
+    ang = sub.add_parser("angles", help="PNG: per-view PSNR vs angle to the nearest training view")
+    ang.add_argument("results")
+    ang.add_argument("--scene", required=True, help="the scene folder (poses are read from it)")
+    ang.add_argument("--protocol", required=True, help="protocol of the lines to plot")
+    ang.add_argument("--out", default="angles.png")
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point; returns the exit status."""
+    argv = list(sys.argv[1:] if argv is None else argv)
+    args = build_parser().parse_args(argv)
+    try:
+        if args.command == "run":
+            return _cmd_run(args, argv)
+        if args.command == "summarize":
+            return _cmd_summarize(args)
+        if args.command == "report":
+            return _cmd_report(args, argv)
+        if args.command == "angles":
+            return _cmd_angles(args)
+        return _cmd_plot(args)
+    except InputError as exc:
+        print(f"senerf-bench: error: {exc}", file=sys.stderr)
+        return 2
+
+
+def _cmd_run(args: argparse.Namespace, argv: list[str]) -> int:
+    if args.workers < 1:
+        raise InputError(f"--workers must be >= 1, got {args.workers}", field="--workers")
+    for s in args.scenes:
+        if not args.dry_run and not Path(s).is_dir():
+            raise InputError("scene folder not found", file=s)
+    check = all(Path(s).is_dir() for s in args.scenes)
+    specs = expand_specs([str(Path(s).resolve()) if Path(s).is_dir() else s for s in args.scenes],
+                         args.protocols, args.methods, args.presets, args.seeds, args.iterations, args.device,
+                         args.steps, check_scenes=check)
+    out = Path(args.out)
+    results = Path(args.results) if args.results else out / "results.jsonl"
+    fit_command = tuple(shlex.split(args.fit_command)) if args.fit_command else None
+    threads = args.threads
+    if threads is None:   # one core per reserved CPU: concurrent fits must not oversubscribe a node
+        threads = (max(1, int(args.cpus_per_run)) if args.ray_address
+                   else max(1, len(os.sched_getaffinity(0)) // args.workers))
+    cfg = RunnerConfig(runs_dir=str((out / "runs").resolve()), fit_command=fit_command,
+                       timeout_s=args.timeout, threads=threads)
+    if args.dry_run:
+        todo, skipped = pending_specs(specs, results)
+        print(f"# {len(specs)} runs: {skipped} already finished, {len(todo)} to run")
+        for spec in todo:
+            print(shlex.join(["senerf-fit", *spec.fit_args(Path(cfg.runs_dir) / spec.dirname())]))
+        return 0
+    try:
+        executor = make_executor(args.workers, args.ray_address, args.cpus_per_run)
+    except ImportError as exc:
+        raise InputError(str(exc), field="--ray-address") from None
+    try:
+        outcome = run_benchmark(specs, executor, results, cfg, ["senerf-bench", *argv])
+    except KeyboardInterrupt:
+        # Finished runs are already on disk; exiting at once makes each run's wrapper stop its fit.
+        print(f"senerf-bench: interrupted; finished runs are in {results}, rerun to resume", file=sys.stderr)
+        sys.stderr.flush()
+        os._exit(130)
+    executor.shutdown()
+    print(f"done: {outcome.ok} ok, {outcome.failed} failed, {outcome.skipped} skipped -> {results}")
+    return 1 if outcome.failed else 0
+
+
+def _load(path: str) -> list[dict]:
+    if not Path(path).is_file():
+        raise InputError("results file not found", file=path)
+    records, bad = load_results(path)
+    if bad:
+        print(f"senerf-bench: warning: skipped {bad} unparseable line(s) in {path}", file=sys.stderr)
+    return records
+
+
+def _cmd_summarize(args: argparse.Namespace) -> int:
+    aggs = aggregate(_load(args.results))
+    if args.final:
+        aggs = final_iterations(aggs)
+    print(format_table(aggs, markdown=args.markdown))
+    return 0
+
+
+def _cmd_report(args: argparse.Namespace, argv: list[str]) -> int:
+    text = make_report(_load(args.results), ["senerf-bench", *argv], title=args.title)
+    if args.out:
+        Path(args.out).parent.mkdir(parents=True, exist_ok=True)
+        Path(args.out).write_text(text + "\n")
+        print(f"wrote {args.out}")
+    else:
+        print(text)
+    return 0
+
+
+def _cmd_plot(args: argparse.Namespace) -> int:
+    aggs = aggregate(_load(args.results))
+    if not aggs:
+        raise InputError("no finished runs to plot", file=args.results)
+    out = Path(args.out_dir)
+    for scene, protocol in sorted({(a.scene, a.protocol) for a in aggs}):
+        group = [a for a in aggs if a.scene == scene and a.protocol == protocol]
+        stem = f"{scene}_{protocol.replace('@', '_at_')}"
+        for path in (plot_frontier(group, out / f"frontier_{stem}.png", f"{scene} {protocol}: PSNR vs cost"),
+                     plot_iterations(group, out / f"iterations_{stem}.png", f"{scene} {protocol}")):
+            print(f"wrote {path}")
+    return 0
+
+
+def _cmd_angles(args: argparse.Namespace) -> int:
+    from senerf.data import load_scene   # numpy + imageio only; imported here to keep start-up light
+
+    proto = parse_protocol(args.protocol)
+    scene = load_scene(args.scene, downscale=proto.downscale)
+    name = Path(args.scene).name
+    lines = [r for r in latest_ok_lines(_load(args.results)) if r["scene"] == name and r["protocol"] == proto.name
+             and r["iteration"] in (0, r["iterations"])]
+    if not lines:
+        raise InputError(f"no finished runs of {name} under {proto.name}", file=args.results)
+    center = (0.0, 0.0, 0.0) if proto.kind == "object" else None
+    angles: dict[str, list] = {}
+    psnr: dict[str, list] = {}
+    for r in lines:
+        a, p = line_view_angles(r, scene.c2w, center)
+        label = f"{r['method']} {preset_label(r)} iter {r['iteration']}"
+        angles.setdefault(label, []).extend(a.tolist())
+        psnr.setdefault(label, []).extend(p.tolist())
+    path = plot_psnr_vs_angle({k: np.asarray(v) for k, v in angles.items()},
+                              {k: np.asarray(v) for k, v in psnr.items()}, args.out,
+                              f"{name} {proto.name}: PSNR vs angle to the nearest training view (all seeds)")
+    print(f"wrote {path}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

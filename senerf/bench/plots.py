@@ -1,0 +1,228 @@
+"""PNG plots (matplotlib's Agg canvas; no global backend switch, no pyplot state).
+
+* :func:`plot_frontier`: PSNR vs wall-clock seconds and vs peak memory, one series per method, one point
+  per preset (self-training methods: one point per iteration, joined per preset).
+* :func:`plot_iterations`: PSNR and SSIM per self-training iteration, mean ± std over seeds.
+* :func:`plot_psnr_vs_angle` (+ :func:`nearest_view_angles`, :func:`line_view_angles`): per-test-view PSNR
+  against the angle to the nearest training camera.  ``metrics.json`` gives per-view PSNR and the view
+  indices; the poses come from the scene (``senerf-bench angles`` loads it), no fit hook needed.
+* :func:`plot_mask_quality` (+ :func:`mask_confusion`): reliability-mask precision / recall / false-positive
+  rate per feature extractor and threshold.  Needs a fit hook that saves the predicted reliability masks and
+  masks from ground-truth colour per pseudo view; ``senerf-fit`` does not write the latter yet.
+"""
+
+from __future__ import annotations
+
+from collections import defaultdict
+from pathlib import Path
+
+import numpy as np
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.figure import Figure
+
+from .summary import Aggregate
+
+__all__ = ["plot_frontier", "plot_iterations", "nearest_view_angles", "line_view_angles", "plot_psnr_vs_angle",
+           "mask_confusion", "plot_mask_quality"]
+
+_PRESET_ORDER = {"fast": 0, "balanced": 1, "quality": 2}
+
+
+def _save(fig: Figure, path: str | Path) -> Path:
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    FigureCanvasAgg(fig)
+    fig.savefig(path, dpi=120, bbox_inches="tight")
+    return path
+
+
+def _method_label(a: Aggregate) -> str:
+    """``"senerf K=3"`` for self-training runs (runs with another K are another series), else the name."""
+    return f"{a.method} K={a.iterations}" if a.iterations else a.method
+
+
+def _err(stat) -> float:
+    return 0.0 if stat.std is None else stat.std
+
+
+def plot_frontier(aggs: list[Aggregate], path: str | Path, title: str = "") -> Path:
+    """PSNR vs cumulative fit seconds (left) and vs peak memory MiB (right); error bars = std over seeds.
+
+    Per method, a solid line joins the final iterations of the presets (fast -> balanced -> quality); on
+    the left, a dotted line per preset also traces its self-training iterations (0 = teacher).  Memory is
+    a whole-run figure, so the right panel shows final iterations only.
+
+    Args:
+        aggs: aggregates of one scene/protocol (others are drawn too but share the axes).
+        path: output PNG.
+    """
+    fig = Figure(figsize=(11, 4.2))
+    ax_t, ax_m = fig.subplots(1, 2)
+    runs: dict[tuple, list[Aggregate]] = defaultdict(list)
+    for a in aggs:
+        runs[(a.scene, a.protocol, _method_label(a), a.preset)].append(a)
+    by_method: dict[tuple, list[Aggregate]] = defaultdict(list)
+    for (scene, protocol, method, preset), group in runs.items():
+        group.sort(key=lambda a: a.iteration)
+        by_method[(scene, protocol, method)].append(group[-1])
+        if len(group) > 1:
+            ax_t.plot([a.seconds.mean for a in group], [a.psnr.mean for a in group], ":", color="0.5", lw=1)
+    for i, (key, finals) in enumerate(sorted(by_method.items())):
+        finals.sort(key=lambda a: _PRESET_ORDER.get(a.preset, 9))
+        label = " ".join(key[2:]) if len({k[:2] for k in by_method}) == 1 else " ".join(key)
+        ys, yerr = [a.psnr.mean for a in finals], [_err(a.psnr) for a in finals]
+        for ax, stat in ((ax_t, "seconds"), (ax_m, "peak_memory_mib")):
+            xs = [getattr(a, stat).mean for a in finals]
+            ax.errorbar(xs, ys, xerr=[_err(getattr(a, stat)) for a in finals], yerr=yerr, color=f"C{i}",
+                        marker="os^Dv"[i % 5], capsize=3, label=label)
+            for a, x, y in zip(finals, xs, ys):
+                ax.annotate(a.preset, (x, y), textcoords="offset points", xytext=(4, 4), fontsize=8)
+    ax_t.set_xscale("log")
+    ax_t.set_xlabel("fit seconds, cumulative over iterations (log)")
+    ax_m.set_xlabel("peak memory of the fit process (MiB)")
+    for ax in (ax_t, ax_m):
+        ax.set_ylabel("test PSNR (dB)")
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=8)
+    fig.suptitle(title or "PSNR vs cost per preset (dotted: self-training iterations)")
+    return _save(fig, path)
+
+
+def plot_iterations(aggs: list[Aggregate], path: str | Path, title: str = "") -> Path:
+    """PSNR (left) and SSIM (right) vs self-training iteration, one line per (scene, method, preset)."""
+    fig = Figure(figsize=(11, 4.2))
+    ax_p, ax_s = fig.subplots(1, 2)
+    series: dict[tuple, list[Aggregate]] = defaultdict(list)
+    for a in aggs:
+        series[(a.scene, a.protocol, _method_label(a), a.preset)].append(a)
+    for (scene, protocol, method, preset), group in sorted(series.items()):
+        group.sort(key=lambda a: a.iteration)
+        it = [a.iteration for a in group]
+        label = f"{scene} {method} {preset}"
+        ax_p.errorbar(it, [a.psnr.mean for a in group], yerr=[_err(a.psnr) for a in group], marker="o",
+                      capsize=3, label=label)
+        ax_s.errorbar(it, [a.ssim.mean for a in group], yerr=[_err(a.ssim) for a in group], marker="o",
+                      capsize=3, label=label)
+    for ax, name in ((ax_p, "test PSNR (dB)"), (ax_s, "test SSIM")):
+        ax.set_xlabel("self-training iteration (0 = teacher)")
+        ax.set_ylabel(name)
+        ax.grid(alpha=0.3)
+        ax.xaxis.get_major_locator().set_params(integer=True)
+    ax_p.legend(fontsize=7)
+    fig.suptitle(title or "quality per self-training iteration")
+    return _save(fig, path)
+
+
+def nearest_view_angles(train_c2w: np.ndarray, test_c2w: np.ndarray,
+                        center: np.ndarray | tuple | None = (0.0, 0.0, 0.0)) -> np.ndarray:
+    """Angle in degrees between each test camera and its nearest training camera.
+
+    Args:
+        train_c2w: (m, 4, 4) or (m, 3, 4) camera-to-world poses of the training views.
+        test_c2w: (n, 4, 4) or (n, 3, 4) poses of the test views.
+        center: (3,) point the cameras orbit (the origin for NeRF Synthetic): the angle between the
+            directions from ``center`` to the camera centres.  ``None``: the angle between the optical axes
+            (camera z, OpenCV), the meaningful choice for forward-facing (LLFF) captures.
+
+    Returns:
+        (n,) float64 degrees in [0, 180].
+    """
+    train_c2w, test_c2w = np.asarray(train_c2w, np.float64), np.asarray(test_c2w, np.float64)
+    for name, a in (("train_c2w", train_c2w), ("test_c2w", test_c2w)):
+        if a.ndim != 3 or a.shape[1:] not in ((4, 4), (3, 4)) or a.shape[0] == 0:
+            raise ValueError(f"{name} must be (k, 4, 4) or (k, 3, 4) with k >= 1, got {a.shape}")
+    if center is None:
+        d_tr, d_te = train_c2w[:, :3, 2].copy(), test_c2w[:, :3, 2].copy()
+    else:
+        c = np.asarray(center, np.float64).reshape(3)
+        d_tr, d_te = train_c2w[:, :3, 3] - c, test_c2w[:, :3, 3] - c
+    d_tr /= np.linalg.norm(d_tr, axis=-1, keepdims=True)
+    d_te /= np.linalg.norm(d_te, axis=-1, keepdims=True)
+    dot = d_te @ d_tr.T                                                        # (n, m)
+    cross = np.linalg.norm(np.cross(d_te[:, None, :], d_tr[None, :, :]), axis=-1)  # (n, m)
+    return np.degrees(np.arctan2(cross, dot).min(axis=1))                      # precise near 0 and 180
+
+
+def line_view_angles(line: dict, c2w: np.ndarray, center: np.ndarray | tuple | None = (0.0, 0.0, 0.0)
+                     ) -> tuple[np.ndarray, np.ndarray]:
+    """(angles (n,) degrees, per-view PSNR (n,)) of one results line.
+
+    Args:
+        line: an ok results line; uses ``views`` and ``test_views`` (indices into the scene's arrays,
+            DESIGN.md / :func:`senerf.data.fewshot_split`) and ``per_view["psnr"]``.
+        c2w: (N, 4, 4) all poses of the scene (``senerf.data.load_scene(...).c2w``).
+        center: see :func:`nearest_view_angles`.
+    """
+    per_view = (line.get("per_view") or {}).get("psnr")
+    test, train = line.get("test_views"), line.get("views")
+    if not per_view or not test or not train or len(per_view) != len(test):
+        raise ValueError(f"{line.get('run_key')}: needs views, test_views and per_view.psnr of equal length")
+    c2w = np.asarray(c2w)
+    angles = nearest_view_angles(c2w[np.asarray(train)], c2w[np.asarray(test)], center)
+    return angles, np.asarray(per_view, np.float64)
+
+
+def plot_psnr_vs_angle(angles_deg: dict[str, np.ndarray], psnr: dict[str, np.ndarray], path: str | Path,
+                       title: str = "") -> Path:
+    """Scatter of per-view PSNR vs angle to the nearest training view, one colour per label.
+
+    Args:
+        angles_deg: label -> (n,) degrees (from :func:`nearest_view_angles`).
+        psnr: label -> (n,) per-view PSNR (``per_view["psnr"]`` of a results line).
+    """
+    fig = Figure(figsize=(6, 4.2))
+    ax = fig.subplots()
+    for label in angles_deg:
+        a, p = np.asarray(angles_deg[label]), np.asarray(psnr[label])
+        if a.shape != p.shape:
+            raise ValueError(f"{label}: angles {a.shape} and psnr {p.shape} differ")
+        ax.scatter(a, p, s=10, alpha=0.6, label=label)
+    ax.set_xlabel("angle to the nearest training view (degrees)")
+    ax.set_ylabel("test-view PSNR (dB)")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8)
+    ax.set_title(title or "PSNR vs distance from the training views")
+    return _save(fig, path)
+
+
+def mask_confusion(predicted: np.ndarray, truth: np.ndarray) -> dict[str, float]:
+    """Precision, recall and false-positive rate of a predicted reliability mask.
+
+    Args:
+        predicted: (...) bool, rays the method labelled reliable.
+        truth: (...) bool, same shape, rays whose pseudo colour matches the ground truth.
+
+    Returns:
+        dict(precision, recall, fpr, tp, fp, fn, tn); a rate with an empty denominator is NaN.
+    """
+    p, t = np.asarray(predicted, bool), np.asarray(truth, bool)
+    if p.shape != t.shape:
+        raise ValueError(f"predicted {p.shape} and truth {t.shape} differ")
+    tp, fp = int(np.sum(p & t)), int(np.sum(p & ~t))
+    fn, tn = int(np.sum(~p & t)), int(np.sum(~p & ~t))
+    rate = lambda a, b: a / b if b else float("nan")  # noqa: E731
+    return {"precision": rate(tp, tp + fp), "recall": rate(tp, tp + fn), "fpr": rate(fp, fp + tn),
+            "tp": tp, "fp": fp, "fn": fn, "tn": tn}
+
+
+def plot_mask_quality(records: list[dict], path: str | Path, title: str = "") -> Path:
+    """Grouped bars of precision, recall and FPR per (feature extractor, threshold).
+
+    Args:
+        records: dicts with ``feature`` (``"vgg19"``), ``threshold`` (``"adaptive"``), ``precision``,
+            ``recall``, ``fpr`` (e.g. :func:`mask_confusion` results plus the two labels).
+    """
+    if not records:
+        raise ValueError("no mask-quality records to plot")
+    labels = [f"{r['feature']}\n{r['threshold']}" for r in records]
+    x = np.arange(len(records))
+    fig = Figure(figsize=(max(5.0, 1.4 * len(records)), 4.2))
+    ax = fig.subplots()
+    for k, name in enumerate(("precision", "recall", "fpr")):
+        ax.bar(x + (k - 1) * 0.27, [r[name] for r in records], width=0.27, label=name)
+    ax.set_xticks(x, labels, fontsize=8)
+    ax.set_ylim(0, 1)
+    ax.grid(axis="y", alpha=0.3)
+    ax.legend(fontsize=8)
+    ax.set_title(title or "reliability mask vs ground-truth mask")
+    return _save(fig, path)

@@ -1,0 +1,181 @@
+"""The results file: JSON lines, appended once per run, read back tolerant of a torn last line.
+
+Every finished run appends all its lines in one locked ``write`` followed by ``flush`` + ``fsync``; only the
+driver process writes (workers return their outcome), and an advisory ``fcntl`` lock also keeps two drivers
+sharing one file from interleaving.  A run is "finished" when the file holds an ``"ok"`` line with its key;
+failed runs leave one ``"failed"`` line and are retried by the next invocation.
+
+Line schema (``schema`` = 1), one line per self-training iteration of an ok run:
+
+==================  ===========================================================================
+``run_key``         :meth:`RunSpec.key`; ``attempt``: random hex id shared by one run's lines
+``status``          ``"ok"`` or ``"failed"``; ``timestamp``: UTC ISO 8601 when written
+``scene``           scene name; ``protocol`` (``"synthetic-extreme3@100"``); ``resolution`` [H, W]
+``views``           training-view indices (from metrics.json); ``n_views``
+``method``          method name; ``preset``; ``seed``; ``iterations`` (K requested)
+``iteration``       0 = teacher/baseline, 1.. = students (None on failed lines)
+``psnr`` ``ssim``   floats (test-set means, dB and [0, 1])
+``lpips`` ``avg``   float, or ``"unavailable"`` (no LPIPS weights); ``reliable_fraction``: float or None
+``seconds``         this iteration's seconds; ``seconds_cumulative``: sum over iterations 0..this one
+``run_seconds``     wall clock of the whole ``senerf-fit`` process (start-up and I/O included)
+``peak_memory_mib`` max RSS of the ``senerf-fit`` process, MiB
+``per_view``        {"psnr": [...], "ssim": [...]} per test view; ``test_views`` their indices
+``commit``          ``git describe --dirty`` of the driver's checkout; ``machine``: see machine_info
+``fit_command``     argv of the fit; ``bench_command``: argv of the benchmark invocation
+``error``           failed lines only: one-line reason, plus ``returncode`` and ``log_tail``
+==================  ===========================================================================
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import fcntl
+import json
+import os
+import uuid
+from pathlib import Path
+
+from .specs import RunSpec
+
+__all__ = ["SCHEMA_VERSION", "REQUIRED_OK_FIELDS", "result_lines", "validate_line", "append_lines",
+           "load_results", "finished_keys", "latest_ok_lines"]
+
+SCHEMA_VERSION = 1
+
+#: field -> accepted types on an ``"ok"`` line.
+REQUIRED_OK_FIELDS: dict[str, tuple[type, ...]] = {
+    "schema": (int,), "run_key": (str,), "attempt": (str,), "status": (str,), "timestamp": (str,),
+    "scene": (str,), "protocol": (str,), "resolution": (list, type(None)), "views": (list, type(None)),
+    "n_views": (int, type(None)), "method": (str,), "preset": (str,), "seed": (int,), "iterations": (int,),
+    "iteration": (int,), "psnr": (float, int), "ssim": (float, int), "lpips": (float, int, str),
+    "avg": (float, int, str), "seconds": (float, int), "seconds_cumulative": (float, int),
+    "run_seconds": (float, int), "peak_memory_mib": (float, int), "commit": (str,), "machine": (dict,),
+    "fit_command": (list,), "bench_command": (list,),
+}
+
+
+def result_lines(spec: RunSpec, outcome: dict, commit: str, bench_command: list[str]) -> list[dict]:
+    """Results-file lines for one run outcome (from :func:`senerf.bench.execute.execute_run`).
+
+    An ok outcome gives one line per iteration in ``metrics.json``; a failed one gives a single line.
+    """
+    common = {
+        "schema": SCHEMA_VERSION, "run_key": spec.key(), "attempt": uuid.uuid4().hex,
+        "status": outcome["status"], "timestamp": _dt.datetime.now(_dt.timezone.utc).isoformat(),
+        "scene": spec.scene, "protocol": spec.protocol, "method": spec.method, "preset": spec.preset,
+        "seed": spec.seed, "iterations": spec.iterations, "device": spec.device, "steps": spec.steps,
+        "run_seconds": outcome.get("run_seconds"), "peak_memory_mib": outcome.get("peak_memory_mib"),
+        "commit": commit, "machine": outcome.get("machine") or {},
+        "fit_command": list(outcome.get("fit_command") or []), "bench_command": list(bench_command),
+        "run_dir": outcome.get("run_dir"),
+    }
+    if outcome["status"] != "ok":
+        views = spec.views()
+        return [{**common, "iteration": None, "views": None if views is None else list(views),
+                 "error": outcome.get("error") or "unknown error", "returncode": outcome.get("returncode"),
+                 "log_tail": outcome.get("log_tail", "")}]
+    metrics = outcome["metrics"]
+    views = metrics.get("train_views")
+    common.update(resolution=metrics.get("resolution"), views=views,
+                  n_views=len(views) if isinstance(views, list) else None,
+                  test_views=metrics.get("test_views"), senerf_version=metrics.get("senerf_version"))
+    lines, cumulative = [], 0.0
+    for it in sorted(metrics["iterations"], key=lambda d: d["iteration"]):
+        cumulative += float(it["seconds"])
+        lines.append({**common, "iteration": it["iteration"], "psnr": float(it["psnr"]),
+                      "ssim": float(it["ssim"]), "lpips": _metric(it.get("lpips")),
+                      "avg": _metric(it.get("avg")), "reliable_fraction": it.get("reliable_fraction"),
+                      "seconds": float(it["seconds"]), "seconds_cumulative": round(cumulative, 3),
+                      "per_view": it.get("per_view")})
+    return lines
+
+
+def _metric(value) -> float | str:
+    """A float, or ``"unavailable"`` for anything else (missing, null, the string itself)."""
+    return float(value) if isinstance(value, (int, float)) and not isinstance(value, bool) else "unavailable"
+
+
+def validate_line(line: dict) -> None:
+    """Raise ``ValueError`` naming the first field of an ``"ok"`` line that is missing or mistyped."""
+    if line.get("status") != "ok":
+        for name in ("run_key", "status", "error"):
+            if not isinstance(line.get(name), str):
+                raise ValueError(f"failed line: {name}: missing or not a string")
+        return
+    for name, types in REQUIRED_OK_FIELDS.items():
+        if name not in line:
+            raise ValueError(f"{name}: missing")
+        value = line[name]
+        if isinstance(value, bool) or not isinstance(value, types):
+            raise ValueError(f"{name}: {type(value).__name__} is not {'/'.join(t.__name__ for t in types)}")
+    for name in ("lpips", "avg"):
+        if isinstance(line[name], str) and line[name] != "unavailable":
+            raise ValueError(f"{name}: string must be 'unavailable', got {line[name]!r}")
+
+
+def append_lines(path: str | Path, lines: list[dict]) -> None:
+    """Append ``lines`` as JSON lines in one locked write, then flush and fsync."""
+    if not lines:
+        return
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    payload = "".join(json.dumps(line, sort_keys=True, allow_nan=True) + "\n" for line in lines)
+    with open(path, "a", encoding="utf-8") as f:
+        fcntl.flock(f.fileno(), fcntl.LOCK_EX)
+        try:
+            if f.tell() > 0 and not _ends_with_newline(path):
+                payload = "\n" + payload          # a torn last line stays isolated
+            f.write(payload)
+            f.flush()
+            os.fsync(f.fileno())
+        finally:
+            fcntl.flock(f.fileno(), fcntl.LOCK_UN)
+
+
+def _ends_with_newline(path: Path) -> bool:
+    with open(path, "rb") as f:
+        f.seek(-1, os.SEEK_END)
+        return f.read(1) == b"\n"
+
+
+def load_results(path: str | Path) -> tuple[list[dict], int]:
+    """All parseable lines of a results file, and the number of lines skipped as unparseable.
+
+    A missing file is an empty result (a fresh benchmark).
+    """
+    path = Path(path)
+    if not path.exists():
+        return [], 0
+    records, bad = [], 0
+    with open(path, encoding="utf-8") as f:
+        for raw in f:
+            raw = raw.strip()
+            if not raw:
+                continue
+            try:
+                rec = json.loads(raw)
+            except json.JSONDecodeError:
+                bad += 1
+                continue
+            if isinstance(rec, dict) and "run_key" in rec:
+                records.append(rec)
+            else:
+                bad += 1
+    return records, bad
+
+
+def finished_keys(records: list[dict]) -> set[str]:
+    """Keys of runs with at least one ``"ok"`` line."""
+    return {r["run_key"] for r in records if r.get("status") == "ok"}
+
+
+def latest_ok_lines(records: list[dict]) -> list[dict]:
+    """The ``"ok"`` lines of the last successful attempt of each run key (file order decides "last").
+
+    Guards summaries against a run recorded twice (two drivers, or a resumed file that was concatenated).
+    """
+    last_attempt: dict[str, str] = {}
+    for r in records:
+        if r.get("status") == "ok":
+            last_attempt[r["run_key"]] = r.get("attempt", "")
+    return [r for r in records if r.get("status") == "ok" and r.get("attempt", "") == last_attempt[r["run_key"]]]

@@ -1,0 +1,295 @@
+"""``senerf-fit``: train the baseline (and self-train) on a scene folder; write renders and metrics.json.
+
+Exit status: 0 done, 2 bad input (one line ``senerf-fit: error: <message>`` on stderr, no traceback, and
+nothing written), 1 internal error.  The output folder (``--out``, default ``runs/<scene>-<protocol>``)
+records its run's settings in ``run.json``; the same command resumes its own run, a different one is
+refused unless ``--overwrite``.  See DESIGN.md ("Command line and outputs") for the ``metrics.json``
+contract.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shutil
+import sys
+import time
+import traceback
+from pathlib import Path
+
+from senerf import __version__
+from senerf.errors import InputError
+
+__all__ = ["main", "build_parser", "parse_views"]
+
+PROG = "senerf-fit"
+_CLI_PROTOCOLS = ("extreme", "llff", "all", "infonerf4", "random8")
+_RUN_FILE = "run.json"
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse that raises :class:`InputError` instead of printing usage and exiting."""
+
+    def error(self, message: str):  # noqa: D401 - argparse hook
+        raise InputError(message)
+
+
+def parse_views(text: str) -> list[int]:
+    """``"0,1,51"`` -> ``[0, 1, 51]``; :class:`InputError` naming ``--views`` otherwise."""
+    items = [t.strip() for t in str(text).split(",")]
+    if not items or any(not t for t in items):
+        raise InputError(f"expected comma-separated integers like 0,1,51, got {text!r}", field="--views")
+    try:
+        return [int(t) for t in items]
+    except ValueError:
+        raise InputError(f"expected comma-separated integers like 0,1,51, got {text!r}", field="--views") from None
+
+
+def _positive_int(flag: str, allow_zero: bool = False):
+    def convert(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            raise InputError(f"expected an integer, got {text!r}", field=flag) from None
+        if value < (0 if allow_zero else 1):
+            raise InputError(f"must be {'>= 0' if allow_zero else '>= 1'}, got {value}", field=flag)
+        return value
+    return convert
+
+
+def _float(flag: str, minimum: float | None = None):
+    def convert(text: str) -> float:
+        try:
+            value = float(text)
+        except ValueError:
+            raise InputError(f"expected a number, got {text!r}", field=flag) from None
+        if value != value or value in (float("inf"), float("-inf")) or (minimum is not None and value < minimum):
+            raise InputError(f"expected a finite number{'' if minimum is None else f' >= {minimum:g}'}, "
+                             f"got {text!r}", field=flag)
+        return value
+    return convert
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The ``senerf-fit`` argument parser (errors raise :class:`InputError`)."""
+    p = _Parser(prog=PROG, description="Few-shot NeRF with SE-NeRF self-training (K-Planes teacher/student).")
+    p.add_argument("scene", nargs="?", help="scene folder (NeRF Synthetic / instant-ngp / LLFF)")
+    g = p.add_argument_group("views")
+    g.add_argument("--views", type=parse_views, help="training view indices, e.g. 0,1,51 (into the train split)")
+    g.add_argument("--n-views", type=_positive_int("--n-views"), help="number of views (llff, random8)")
+    g.add_argument("--protocol", choices=_CLI_PROTOCOLS,
+                   help="few-shot protocol (default: 'views' with --views, else extreme / llff by scene kind)")
+    g.add_argument("--downscale", type=_float("--downscale", 1.0),
+                   help="image downscale factor (default 1; LLFF: 8, relative to full resolution)")
+    t = p.add_argument_group("training")
+    t.add_argument("--preset", choices=("fast", "balanced", "quality"), default="balanced")
+    t.add_argument("--steps", type=_positive_int("--steps"), help="training steps per iteration (overrides preset)")
+    t.add_argument("--batch-rays", type=_positive_int("--batch-rays"), help="rays per step (overrides preset)")
+    t.add_argument("--iterations", type=_positive_int("--iterations", allow_zero=True), default=3,
+                   help="self-training iterations after the baseline (0 = baseline only)")
+    t.add_argument("--device", default="cpu", help="cpu or cuda")
+    t.add_argument("--seed", type=_positive_int("--seed", allow_zero=True), default=0)
+    m = p.add_argument_group("model overrides (default: chosen from the scene and printed)")
+    m.add_argument("--field", choices=("kplanes", "nerf"))
+    m.add_argument("--resolution", type=_positive_int("--resolution"), help="base plane resolution")
+    m.add_argument("--samples", type=_positive_int("--samples"), help="samples per ray")
+    m.add_argument("--aabb", type=_float("--aabb", 0.0), help="half size of a cube AABB around the origin")
+    m.add_argument("--background", choices=("random", "white", "black"), help="training background")
+    m.add_argument("--no-view-dependence", action="store_true", help="colour ignores the view direction")
+    m.add_argument("--no-occupancy", action="store_true", help="no occupancy grid")
+    s = p.add_argument_group("self-training")
+    s.add_argument("--features", choices=("vgg19", "daisy"), default="vgg19")
+    s.add_argument("--threshold", choices=("adaptive", "fixed", "unified"), default="adaptive")
+    s.add_argument("--no-density-distill", action="store_true")
+    s.add_argument("--no-prior", action="store_true")
+    o = p.add_argument_group("output")
+    o.add_argument("--out", type=Path, help="output folder (default runs/<scene>-<protocol>)")
+    o.add_argument("--overwrite", action="store_true", help="replace a different run in --out")
+    o.add_argument("--demo", action="store_true", help="build a small procedural scene and fit it")
+    o.add_argument("--quiet", action="store_true", help="no progress bars")
+    p.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
+    return p
+
+
+def _model_overrides(args) -> dict:
+    out = {}
+    if args.field:
+        out["field"] = args.field
+    if args.resolution:
+        out["resolution"] = args.resolution
+    if args.samples:
+        out["n_samples"] = args.samples
+    if args.aabb:
+        out["aabb"] = ((-args.aabb,) * 3, (args.aabb,) * 3)
+    if args.background:
+        out["train_background"] = args.background
+    if args.no_view_dependence:
+        out["view_dependent"] = False
+    if args.no_occupancy:
+        out["occupancy_resolution"] = 0
+    return out
+
+
+def _check_device(device: str) -> str:
+    import torch
+
+    if device == "cpu":
+        return device
+    if device == "cuda" or device.startswith("cuda:"):
+        if not torch.cuda.is_available():
+            raise InputError("CUDA requested but torch sees no GPU (use --device cpu)", field="--device")
+        return device
+    raise InputError(f"expected cpu or cuda, got {device!r}", field="--device")
+
+
+def _prepare_out(out: Path, identity: dict, overwrite: bool) -> None:
+    """Refuse a folder holding another run (unless ``overwrite``); record this run's identity."""
+    from senerf.train import atomic_write_text
+
+    run_file = out / _RUN_FILE
+    if run_file.exists():
+        try:
+            old = json.loads(run_file.read_text())
+        except (OSError, json.JSONDecodeError):
+            old = None
+        if old != identity:
+            if not overwrite:
+                raise InputError("holds a different run (settings differ); use --overwrite or another --out",
+                                 file=out)
+            for name in ("checkpoints", "metrics.json", _RUN_FILE):
+                target = out / name
+                if target.is_dir():
+                    shutil.rmtree(target)
+                elif target.exists():
+                    target.unlink()
+            for child in out.glob("iter_*"):
+                if child.is_dir():
+                    shutil.rmtree(child)
+    elif out.exists() and any(out.iterdir()) and not overwrite:
+        raise InputError("exists and is not a senerf-fit output folder; use --overwrite or another --out", file=out)
+    atomic_write_text(run_file, json.dumps(identity, indent=1, sort_keys=True))
+
+
+def _run_baseline(scene, train_idx, test_idx, model, train_cfg, out: Path, argv, config: dict, progress: bool) -> dict:
+    """Iteration 0 only: train the teacher, evaluate, write metrics.json (DESIGN.md contract)."""
+    from senerf.train import RayBatchSource, atomic_write_text, build_field, evaluate, train_field
+
+    t0 = time.perf_counter()
+    rays = RayBatchSource.from_scene(scene, train_idx, model, train_cfg.device)
+    field = build_field(model, seed=train_cfg.seed, steps=train_cfg.steps)
+    result = train_field(field, rays, train_cfg, checkpoint=out / "checkpoints" / "iter_0_train.pt",
+                         progress=progress)
+    ev = evaluate(result.field, scene, test_idx, out / "iter_0" / "test", model, occupancy=result.occupancy,
+                  device=train_cfg.device, progress=progress)
+    seconds = time.perf_counter() - t0
+    h, w = scene.intrinsics.size
+    metrics = {"senerf_version": __version__, "command": list(argv), "config": config, "scene": scene.name,
+               "train_views": [int(i) for i in train_idx], "test_views": [int(i) for i in test_idx],
+               "resolution": [int(h), int(w)],
+               "iterations": [dict(iteration=0, psnr=ev["psnr"], ssim=ev["ssim"], lpips=ev["lpips"], avg=ev["avg"],
+                                   reliable_fraction=None, seconds=seconds, per_view=ev["per_view"])],
+               "seconds_total": seconds}
+    atomic_write_text(out / "metrics.json", json.dumps(metrics, indent=1))
+    return metrics
+
+
+def _selftrain_available():
+    try:
+        from senerf.selftrain import SelfTrainConfig, run_selftraining
+    except ImportError as exc:
+        return None, str(exc)
+    return (SelfTrainConfig, run_selftraining), None
+
+
+def _run(args, argv) -> int:
+    if args.demo:
+        try:
+            from senerf.demo import run_demo
+        except ImportError:
+            raise InputError("--demo is not available in this build (senerf.demo.run_demo is missing)",
+                             field="--demo") from None
+        return int(run_demo(args) or 0)
+    if not args.scene:
+        raise InputError("a SCENE_DIR is required (or --demo)", field="SCENE_DIR")
+    device = _check_device(args.device)
+
+    from senerf.data import detect_format, fewshot_split, load_scene
+    from senerf.train import choose_model, config_to_dict, preset_train_config
+
+    scene_dir = Path(args.scene)
+    fmt = detect_format(scene_dir)
+    downscale = args.downscale if args.downscale is not None else (8.0 if fmt == "llff" else 1.0)
+    scene = load_scene(scene_dir, downscale=downscale)
+    protocol = args.protocol or ("views" if args.views is not None else
+                                 ("llff" if scene.kind == "forward_facing" else "extreme"))
+    train_idx, test_idx = fewshot_split(scene, protocol, views=args.views, n_views=args.n_views, seed=args.seed)
+    print(f"{PROG}: scene {scene.name} ({fmt}, {scene.size[1]}x{scene.size[0]}), protocol {protocol}: "
+          f"{len(train_idx)} training views {list(map(int, train_idx))[:12]}{' ...' if len(train_idx) > 12 else ''}, "
+          f"{len(test_idx)} test views")
+    from senerf.train import PRESETS
+
+    model = choose_model(scene, train_idx, {**PRESETS[args.preset]["model"], **_model_overrides(args)})
+    overrides = {k: v for k, v in (("steps", args.steps), ("batch_rays", args.batch_rays)) if v is not None}
+    train_cfg = preset_train_config(args.preset, seed=args.seed, device=device, **overrides)
+
+    selftrain = None
+    st_cfg = None
+    if args.iterations > 0:
+        selftrain, why = _selftrain_available()
+        if selftrain is None:
+            print(f"{PROG}: self-training is not available ({why}); running the baseline only", file=sys.stderr)
+        else:
+            st_cfg = selftrain[0](iterations=args.iterations, features=args.features, threshold=args.threshold,
+                                  density_distill=not args.no_density_distill, prior=not args.no_prior,
+                                  seed=args.seed)
+
+    out = args.out if args.out is not None else Path("runs") / f"{scene.name}-{protocol}"
+    config = dict(scene_dir=str(scene_dir.resolve()), format=fmt, downscale=downscale, protocol=protocol,
+                  views=args.views, n_views=args.n_views, preset=args.preset, train=config_to_dict(train_cfg),
+                  model=config_to_dict(model),
+                  selftrain=None if st_cfg is None else config_to_dict(st_cfg))
+    # what must match to resume: everything but the device and the number of iterations (a finished
+    # baseline can be extended by self-training with the same settings)
+    identity = {k: v for k, v in config.items() if k != "selftrain"}
+    identity["train"] = {k: v for k, v in identity["train"].items() if k != "device"}
+    identity["selftrain_flags"] = dict(features=args.features, threshold=args.threshold,
+                                       density_distill=not args.no_density_distill, prior=not args.no_prior)
+    _prepare_out(out, identity, args.overwrite)
+    print(f"{PROG}: writing to {out}")
+
+    progress = not args.quiet
+    if selftrain is None:
+        metrics = _run_baseline(scene, train_idx, test_idx, model, train_cfg, out, argv, config, progress)
+    else:
+        extra = {k: v for k, v in config.items() if k not in ("train", "model", "selftrain")}
+        metrics = selftrain[1](scene, train_idx, test_idx, model, train_cfg, st_cfg, out, command=argv,
+                               extra_config=extra, progress=progress)
+    for it in metrics["iterations"]:
+        print(f"{PROG}: iteration {it['iteration']}: PSNR {it['psnr']:.2f} dB, SSIM {it['ssim']:.3f}, "
+              f"LPIPS {it['lpips']}, {it['seconds']:.0f} s")
+    print(f"{PROG}: metrics in {out / 'metrics.json'}")
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point of ``senerf-fit``; returns the exit status (0 ok, 2 bad input, 1 internal error)."""
+    argv = list(sys.argv[1:] if argv is None else argv)
+    try:
+        args = build_parser().parse_args(argv)
+        return _run(args, [PROG, *argv])
+    except InputError as exc:
+        print(f"{PROG}: error: {exc}", file=sys.stderr)
+        return 2
+    except SystemExit as exc:  # --help / --version
+        return int(exc.code or 0) if isinstance(exc.code, int) or exc.code is None else 2
+    except KeyboardInterrupt:
+        print(f"{PROG}: interrupted (rerun the same command to resume)", file=sys.stderr)
+        return 130
+    except Exception:  # an internal error: keep the traceback for the bug report
+        traceback.print_exc()
+        print(f"{PROG}: internal error (please report it with the traceback above)", file=sys.stderr)
+        return 1
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

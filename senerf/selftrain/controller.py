@@ -1,0 +1,419 @@
+"""The self-training loop: teacher -> pseudo labels -> reliability -> fresh student -> next teacher.
+
+Iteration 0 trains the baseline teacher on the sparse views (photometric loss only).  Iteration ``K >= 1``:
+
+1. ``n_pseudo_per_input x m`` pseudo poses from ``senerf.geometry.sample_pseudo_views`` within
+   ``pseudo_range_deg + (K - 1) pseudo_range_step_deg`` degrees of the ``m`` inputs (10, 15, 20 ...);
+2. the teacher renders them and the known views (rgb, z-depth, opacity; ``senerf.train.render_views``);
+3. features of the pseudo renders and of the *real* known images (computed once per run), feature
+   consistency through ``geometry.reproject`` (:func:`senerf.selftrain.reliability.view_similarity`, with the
+   teacher's known-view z-depth as occlusion buffer; known pixels with opacity < ``opacity_threshold`` are
+   "no surface"), the threshold of the iteration (adaptive ``alpha = alpha0 + (K - 1) alpha_step``);
+4. a freshly initialised student is trained on the real rays plus :class:`DistillationLoss` (through the
+   trainer's ``extra_loss`` hook), then becomes the teacher.
+
+Outputs under ``out_dir`` (DESIGN.md): ``iter_K/test/`` (``senerf.train.evaluate``), ``iter_K/pseudo/``
+(``rgb_XXX.png`` teacher render, ``similarity_XXX.png`` grey = max similarity clipped to [0, 1],
+``mask_XXX.png``: white reliable, blue unreliable with a prior target, black unreliable without one, grey
+background), ``metrics.json`` (atomic, after every iteration) and ``checkpoints/``: ``teacher.pt``
+(the finished iteration's field, atomic) and the trainer's own ``iter_K_train.pt``.  A killed run resumes
+from the last finished iteration (and inside an iteration from the trainer's checkpoint); everything in an
+iteration is seeded from ``(seed, K)``, so the resumed run repeats the same pseudo views.
+
+Cameras are reached only through ``senerf.geometry`` (pose sampling, warps) and the trainer's rendering and
+ray-building functions (``render_views``, ``camera_rays``); this module does no projection math itself.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+import torch
+
+from .. import __version__, geometry
+from ..errors import InputError
+from ..train import (atomic_write_text, build_field, camera_rays, config_to_dict, evaluate, load_checkpoint,
+                     make_occupancy, render_views, save_checkpoint, train_field, write_png)
+from .distill import DistillationLoss, DistillConfig, PseudoRays, prior_weights, unified_prior_weights
+from .features import FEATURE_NAMES, make_feature_extractor
+from .reliability import (THRESHOLD_KINDS, gt_reliable_mask, mask_quality, resolve_threshold, threshold_weights,
+                          view_similarity)
+
+__all__ = ["SelfTrainConfig", "PseudoLabels", "run_selftraining", "estimate_reliability", "known_images",
+           "reliability_mask_quality"]
+
+_CKPT_FORMAT = "senerf-selftrain-1"
+
+
+@dataclass(frozen=True)
+class SelfTrainConfig:
+    """Self-training settings (every one is recorded in ``metrics.json``).
+
+    Attributes:
+        iterations: self-training iterations after the baseline (0 = baseline only).
+        n_pseudo_per_input: pseudo views per known view and iteration.
+        pseudo_range_deg: max azimuth/elevation offset of pseudo views in iteration 1 (paper: 10).
+        pseudo_range_step_deg: widening per later iteration.
+        features: 'vgg19' | 'daisy'.
+        normalize_layers: VGG only: L2-normalise each layer before concatenating.
+        threshold: 'adaptive' | 'fixed' | 'unified'.
+        alpha0, alpha_step: adaptive threshold: ``tau`` = (1 - alpha) quantile, alpha grows per iteration.
+        fixed_tau: the fixed threshold.
+        beta: the unified weighting's sigmoid slope.
+        opacity_threshold: teacher opacity below which a pixel is background (ignored).
+        occlusion_rel_tol: relative depth slack of the occlusion test.
+        batch_reliable, batch_prior, lambda_color, lambda_geometry, lambda_prior, geometry_target,
+        density_distill, prior, kernel_size, kernel_std, skip_empty: see :class:`DistillConfig`.
+        seed: seeds pseudo-view sampling and student initialisation.
+    """
+
+    iterations: int = 3
+    n_pseudo_per_input: int = 8
+    pseudo_range_deg: float = 10.0
+    pseudo_range_step_deg: float = 5.0
+    features: str = "vgg19"
+    normalize_layers: bool = True
+    threshold: str = "adaptive"
+    alpha0: float = 0.15
+    alpha_step: float = 0.05
+    fixed_tau: float = 0.6
+    beta: float = 16.0
+    opacity_threshold: float = 0.5
+    occlusion_rel_tol: float = 0.05
+    batch_reliable: int = 1024
+    batch_prior: int = 256
+    lambda_color: float = 1.0
+    lambda_geometry: float = 1.0
+    lambda_prior: float = 0.005
+    geometry_target: str = "weights"
+    density_distill: bool = True
+    prior: bool = True
+    kernel_size: int = 3
+    kernel_std: float = 1.0
+    skip_empty: bool = True
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.iterations, int) or self.iterations < 0:
+            raise InputError(f"must be an integer >= 0, got {self.iterations!r}", field="iterations")
+        if not isinstance(self.n_pseudo_per_input, int) or self.n_pseudo_per_input < 1:
+            raise InputError(f"must be an integer >= 1, got {self.n_pseudo_per_input!r}", field="n_pseudo_per_input")
+        if self.features not in FEATURE_NAMES:
+            raise InputError(f"must be one of {', '.join(FEATURE_NAMES)}, got {self.features!r}", field="features")
+        if self.threshold not in THRESHOLD_KINDS:
+            raise InputError(f"must be one of {', '.join(THRESHOLD_KINDS)}, got {self.threshold!r}",
+                             field="threshold")
+        if not (0 <= self.alpha0 <= 1 and self.alpha_step >= 0):
+            raise InputError("alpha0 must be in [0, 1] and alpha_step >= 0", field="alpha0")
+        if not (self.pseudo_range_deg >= 0 and self.pseudo_range_step_deg >= 0):
+            raise InputError("pseudo ranges must be >= 0 degrees", field="pseudo_range_deg")
+        if not 0 < self.opacity_threshold <= 1:
+            raise InputError(f"must be in (0, 1], got {self.opacity_threshold!r}", field="opacity_threshold")
+        try:
+            self.distill_config()
+        except ValueError as exc:
+            raise InputError(str(exc), field="distillation") from None
+
+    def distill_config(self) -> DistillConfig:
+        """The :class:`DistillConfig` part of this configuration."""
+        return DistillConfig(batch_reliable=self.batch_reliable, batch_prior=self.batch_prior,
+                             lambda_color=self.lambda_color, lambda_geometry=self.lambda_geometry,
+                             lambda_prior=self.lambda_prior, geometry_target=self.geometry_target,
+                             density_distill=self.density_distill, prior=self.prior,
+                             kernel_size=self.kernel_size, kernel_std=self.kernel_std,
+                             skip_empty=self.skip_empty)
+
+    def alpha(self, iteration: int) -> float:
+        """Adaptive-threshold alpha of iteration ``iteration >= 1`` (capped at 1)."""
+        return min(1.0, self.alpha0 + (iteration - 1) * self.alpha_step)
+
+    def pseudo_range(self, iteration: int) -> float:
+        """Max angular offset (degrees) of the pseudo views of iteration ``iteration >= 1``."""
+        return self.pseudo_range_deg + (iteration - 1) * self.pseudo_range_step_deg
+
+
+@dataclass(frozen=True)
+class PseudoLabels:
+    """Teacher renders of pseudo views and their reliability.
+
+    Attributes:
+        c2w: (P, 4, 4) pseudo poses.  rgb: (P, H, W, 3).  z_depth, acc: (P, H, W).
+        similarity: (P, H, W) max feature similarity (-1 where no known view sees the pixel).
+        foreground: (P, H, W) bool.  tau: the hard threshold used (None for 'unified').
+        weights: (P, H, W) reliable weight in [0, 1].
+        prior: (P, H, W) prior weight (unreliable foreground pixels with a reliable neighbour).
+        neighbour: (P, H, W, Q*Q - 1) normalised neighbour weights.
+    """
+
+    c2w: np.ndarray
+    rgb: np.ndarray
+    z_depth: np.ndarray
+    acc: np.ndarray
+    similarity: np.ndarray
+    foreground: np.ndarray
+    tau: float | None
+    weights: np.ndarray
+    prior: np.ndarray
+    neighbour: np.ndarray
+
+    @property
+    def reliable_fraction(self) -> float:
+        """Mean reliable weight over foreground pseudo pixels (NaN without foreground)."""
+        fg = self.foreground
+        return float(self.weights[fg].mean()) if fg.any() else float("nan")
+
+
+def known_images(scene, idx, model) -> np.ndarray:
+    """The real images ``idx`` as the teacher sees them at evaluation: (n, H, W, 3), RGBA composited onto
+    ``model.eval_background``."""
+    idx = np.asarray(idx, dtype=np.int64).reshape(-1)
+    if scene.alpha is None:
+        return np.asarray(scene.rgb[idx], dtype=np.float32)
+    bg = (1.0, 1.0, 1.0) if model.eval_background == "white" else (0.0, 0.0, 0.0)
+    return np.asarray(scene.composite(bg)[idx], dtype=np.float32)
+
+
+def estimate_reliability(teacher, occupancy, model, scene, train_idx, pseudo_c2w: np.ndarray, extractor,
+                         cfg: SelfTrainConfig, alpha: float, known_features: np.ndarray | None = None,
+                         device=None, renders: tuple[dict, dict] | None = None) -> PseudoLabels:
+    """Render ``pseudo_c2w (P, 4, 4)`` with the teacher and estimate every pixel's reliability.
+
+    Args:
+        teacher, occupancy: the teacher field and its occupancy grid (or None).
+        model: its :class:`senerf.train.ModelConfig`.
+        scene, train_idx: the known views ``train_idx (m,)``.
+        extractor: a :class:`~senerf.selftrain.features.FeatureExtractor`.
+        cfg: thresholds, occlusion tolerance, kernel.
+        alpha: the adaptive threshold's alpha for this iteration.
+        known_features: (m, H, W, C) features of :func:`known_images`; computed when None.
+        renders: ``(known, pseudo)`` teacher renders (``senerf.train.render_views`` dicts of the known and the
+            pseudo cameras) to reuse; rendered when None.
+    Returns:
+        :class:`PseudoLabels`.
+    """
+    train_idx = np.asarray(train_idx, dtype=np.int64).reshape(-1)
+    intr = scene.intrinsics
+    known_c2w = np.asarray(scene.c2w[train_idx], dtype=np.float64)
+    if known_features is None:
+        known_features = extractor(known_images(scene, train_idx, model))
+    if renders is None:
+        renders = (render_views(teacher, model, intr, known_c2w, occupancy=occupancy, device=device),
+                   render_views(teacher, model, intr, pseudo_c2w, occupancy=occupancy, device=device))
+    known, pseudo = renders
+    if known["acc"].shape[0] != train_idx.size or pseudo["acc"].shape[0] != pseudo_c2w.shape[0]:
+        raise ValueError("renders do not match the known / pseudo cameras")
+    known_z = np.where(known["acc"] >= cfg.opacity_threshold, known["z_depth"], np.inf)
+    n = pseudo_c2w.shape[0]
+    sims = np.empty(pseudo["acc"].shape, np.float32)
+    fg = np.empty(pseudo["acc"].shape, bool)
+    for i in range(n):
+        feats = extractor(np.clip(pseudo["rgb"][i:i + 1], 0.0, 1.0))[0]
+        res = view_similarity(feats, pseudo["z_depth"][i], pseudo["acc"][i], intr, pseudo_c2w[i],
+                              known_features, known_z, intr, known_c2w,
+                              opacity_threshold=cfg.opacity_threshold, rel_tol=cfg.occlusion_rel_tol)
+        sims[i], fg[i] = res.similarity, res.foreground
+    tau = resolve_threshold(cfg.threshold, sims[fg], alpha=alpha, tau=cfg.fixed_tau)
+    weights = threshold_weights(sims, fg, cfg.threshold, tau=tau, beta=cfg.beta)
+    if cfg.threshold == "unified":
+        neighbour, has = unified_prior_weights(sims, fg, cfg.kernel_size, cfg.kernel_std)
+        prior = np.where(fg & has, 1.0 - weights, 0.0).astype(np.float32)
+    else:
+        neighbour, has = prior_weights(weights > 0, cfg.kernel_size, cfg.kernel_std)
+        prior = (fg & has & (weights <= 0)).astype(np.float32)
+    return PseudoLabels(c2w=pseudo_c2w, rgb=pseudo["rgb"], z_depth=pseudo["z_depth"], acc=pseudo["acc"],
+                        similarity=sims, foreground=fg, tau=tau, weights=weights, prior=prior,
+                        neighbour=neighbour)
+
+
+def reliability_mask_quality(teacher, occupancy, model, scene, train_idx, eval_idx, extractor,
+                             cfg: SelfTrainConfig, alpha: float, max_error: float = 0.1,
+                             known_features: np.ndarray | None = None, device=None,
+                             renders: tuple[dict, dict] | None = None) -> tuple[dict, PseudoLabels]:
+    """Our reliable masks vs masks from ground-truth colour, at held-out dataset poses used as pseudo views.
+
+    The ground-truth mask of a pixel is ``mean |C_T - C_gt| < max_error`` (teacher render vs the real image,
+    both on ``model.eval_background``); pixels are counted on the teacher's foreground (where our masks are
+    defined).  'unified' weights count as reliable above 0.5.
+
+    Args:
+        eval_idx: (P,) indices of held-out images of ``scene`` (not in ``train_idx``).
+        the rest: as :func:`estimate_reliability` (``renders``: of the known and the ``eval_idx`` cameras).
+    Returns:
+        (dict ``precision, recall, fpr, tp, fp, fn, tn, gt_reliable_rate`` (share of foreground pixels
+        that are right by the ground truth: the precision of a mask that keeps everything), the labels).
+    """
+    eval_idx = np.asarray(eval_idx, dtype=np.int64).reshape(-1)
+    if np.intersect1d(eval_idx, np.asarray(train_idx)).size:
+        raise ValueError("eval_idx must not contain known views")
+    labels = estimate_reliability(teacher, occupancy, model, scene, train_idx,
+                                  np.asarray(scene.c2w[eval_idx], dtype=np.float64), extractor, cfg, alpha,
+                                  known_features=known_features, device=device, renders=renders)
+    truth = gt_reliable_mask(np.clip(labels.rgb, 0.0, 1.0), known_images(scene, eval_idx, model), max_error)
+    predicted = labels.weights > 0.5
+    quality = mask_quality(predicted, truth, labels.foreground)
+    fg = labels.foreground
+    quality["gt_reliable_rate"] = float(truth[fg].mean()) if fg.any() else float("nan")
+    quality["predicted_reliable_rate"] = float(predicted[fg].mean()) if fg.any() else float("nan")
+    return quality, labels
+
+
+def _pseudo_rays(labels: PseudoLabels, intrinsics, model, device, q: int) -> PseudoRays:
+    rays = camera_rays(intrinsics, labels.c2w, model, device)
+    t = lambda a: torch.as_tensor(np.ascontiguousarray(a), dtype=torch.float32, device=device)  # noqa: E731
+    n = labels.weights.size
+    return PseudoRays(rays["origins"], rays["dirs"], rays["near"], rays["far"], tuple(labels.weights.shape),
+                      t(labels.weights.reshape(-1)), t(labels.prior.reshape(-1)),
+                      t(labels.neighbour.reshape(n, -1)), q=q)
+
+
+def _write_pseudo_pngs(folder: Path, labels: PseudoLabels) -> None:
+    for i in range(labels.c2w.shape[0]):
+        write_png(folder / f"rgb_{i:03d}.png", np.clip(labels.rgb[i], 0.0, 1.0))
+        sim = np.clip(labels.similarity[i], 0.0, 1.0)
+        write_png(folder / f"similarity_{i:03d}.png", np.repeat(sim[..., None], 3, axis=-1))
+        mask = np.zeros(labels.similarity[i].shape + (3,), np.float32)
+        mask[~labels.foreground[i]] = 0.5
+        mask[labels.prior[i] > 0] = (0.2, 0.4, 1.0)
+        w = labels.weights[i][..., None]
+        mask = np.where(labels.weights[i][..., None] > 0, w * 1.0 + (1 - w) * mask, mask)
+        write_png(folder / f"mask_{i:03d}.png", mask)
+
+
+def _sample_pseudo_poses(scene, train_idx, cfg: SelfTrainConfig, iteration: int) -> np.ndarray:
+    rng = np.random.default_rng([cfg.seed, iteration])
+    known_c2w = np.asarray(scene.c2w[np.asarray(train_idx)], dtype=np.float64)
+    out = geometry.sample_pseudo_views(known_c2w, cfg.pseudo_range(iteration),
+                                       cfg.n_pseudo_per_input * known_c2w.shape[0], rng)
+    c2w = out[0] if isinstance(out, tuple) else out
+    return np.asarray(c2w, dtype=np.float64)
+
+
+def _fingerprint(record: dict) -> str:
+    return hashlib.sha256(json.dumps(record, sort_keys=True, default=str).encode()).hexdigest()[:16]
+
+
+def _save_teacher(path: Path, field, occupancy, iteration: int, fingerprint: str, iterations: list) -> None:
+    """The finished iteration's field (+ grid) and the metrics rows up to it, in one atomic file."""
+    state = dict(format=_CKPT_FORMAT, iteration=int(iteration), fingerprint=fingerprint,
+                 field=field.state_dict(), iterations_json=json.dumps(iterations))
+    if occupancy is not None:
+        state["occupancy"] = occupancy.state_dict()
+    save_checkpoint(path, state)
+
+
+def _load_teacher(path: Path, model, cfg_train, fingerprint: str, device):
+    state = load_checkpoint(path, map_location=device)
+    if state.get("format") != _CKPT_FORMAT or state.get("fingerprint") != fingerprint:
+        raise InputError("output folder holds a run with different settings; use --overwrite or another --out",
+                         file=path)
+    iteration = int(state["iteration"])
+    field = build_field(model, seed=cfg_train.seed + iteration, steps=cfg_train.steps).to(device)
+    field.load_state_dict(state["field"])
+    if hasattr(field, "set_progress"):
+        field.set_progress(cfg_train.steps)
+    field.eval()
+    occupancy = make_occupancy(model, device)
+    if occupancy is not None and "occupancy" in state:
+        occupancy.load_state_dict(state["occupancy"])
+    return field, occupancy, iteration, json.loads(state.get("iterations_json", "[]"))
+
+
+def run_selftraining(scene, train_idx, test_idx, model, train_cfg, cfg: SelfTrainConfig, out_dir,
+                     student_cfg=None, command: list | None = None, extra_config: dict | None = None,
+                     progress: bool = True, echo: Callable[[str], None] = print) -> dict:
+    """Baseline teacher + ``cfg.iterations`` self-training iterations, with outputs and resume.
+
+    Args:
+        scene: the :class:`senerf.data.Scene`.
+        train_idx: (m,) known (training) view indices; test_idx: (t,) evaluation view indices.
+        model: :class:`senerf.train.ModelConfig` (from ``choose_model``).
+        train_cfg: :class:`senerf.train.TrainConfig` of the baseline teacher (iteration 0).
+        cfg: :class:`SelfTrainConfig`.
+        out_dir: output folder (created; an existing run with the same settings is resumed).
+        student_cfg: TrainConfig of the students (default ``train_cfg``).
+        command: argv recorded in ``metrics.json``.
+        extra_config: more settings to record under ``config`` (e.g. the CLI's preset).
+        progress: tqdm bars; echo: where one-line status messages go.
+    Returns:
+        the ``metrics.json`` dict (DESIGN.md contract).
+    """
+    from ..train import RayBatchSource
+
+    t_run = time.perf_counter()
+    out = Path(out_dir)
+    student_cfg = student_cfg or train_cfg
+    device = torch.device(train_cfg.device)
+    train_idx = np.asarray(train_idx, dtype=np.int64).reshape(-1)
+    test_idx = np.asarray(test_idx, dtype=np.int64).reshape(-1)
+    config = dict(train=config_to_dict(train_cfg), student=config_to_dict(student_cfg),
+                  model=config_to_dict(model), selftrain=config_to_dict(cfg), **(extra_config or {}))
+    h, w = scene.intrinsics.size
+    volatile = ("iterations", "device", "checkpoint_every")  # may change between a run and its resume
+    fingerprint = _fingerprint(dict(
+        config={name: ({k: v for k, v in part.items() if k not in volatile} if isinstance(part, dict) else part)
+                for name, part in config.items()},
+        scene=scene.name, train=train_idx.tolist(), test=test_idx.tolist(), size=[h, w]))
+    metrics = {"senerf_version": __version__, "command": list(command or []), "config": config,
+               "scene": scene.name, "train_views": train_idx.tolist(), "test_views": test_idx.tolist(),
+               "resolution": [int(h), int(w)], "iterations": [], "seconds_total": 0.0}
+    ckpt_dir = out / "checkpoints"
+    teacher_path = ckpt_dir / "teacher.pt"
+    metrics_path = out / "metrics.json"
+    teacher, occupancy, start = None, None, 0
+    seconds_before = 0.0
+    if teacher_path.exists():
+        teacher, occupancy, done, rows = _load_teacher(teacher_path, model, train_cfg, fingerprint, device)
+        metrics["iterations"] = [it for it in rows if it["iteration"] <= done]
+        seconds_before = float(sum(it.get("seconds", 0.0) for it in metrics["iterations"]))
+        start = done + 1
+        echo(f"selftrain: resuming after iteration {done} from {teacher_path}")
+    rays = RayBatchSource.from_scene(scene, train_idx, model, device)
+    extractor = None
+    known_feats = None
+    for k in range(start, cfg.iterations + 1):
+        t_it = time.perf_counter()
+        reliable_fraction = None
+        tcfg = train_cfg if k == 0 else student_cfg
+        field = build_field(model, seed=tcfg.seed + k, steps=tcfg.steps)
+        extra = None
+        if k > 0:
+            if extractor is None:
+                extractor = make_feature_extractor(cfg.features, **(
+                    {"normalize_layers": cfg.normalize_layers} if cfg.features == "vgg19" else {}))
+                known_feats = extractor(known_images(scene, train_idx, model))
+            pseudo_c2w = _sample_pseudo_poses(scene, train_idx, cfg, k)
+            labels = estimate_reliability(teacher, occupancy, model, scene, train_idx, pseudo_c2w, extractor, cfg,
+                                          cfg.alpha(k), known_features=known_feats, device=device)
+            reliable_fraction = labels.reliable_fraction
+            _write_pseudo_pngs(out / f"iter_{k}" / "pseudo", labels)
+            tau_txt = "soft" if labels.tau is None else f"{labels.tau:.3f}"
+            echo(f"selftrain: iteration {k}: {pseudo_c2w.shape[0]} pseudo views within "
+                 f"{cfg.pseudo_range(k):g} deg, tau {tau_txt}, reliable {100 * reliable_fraction:.1f} % of "
+                 f"foreground, prior on {100 * float(labels.prior[labels.foreground].mean()):.1f} %")
+            pseudo = _pseudo_rays(labels, scene.intrinsics, model, device, cfg.kernel_size)
+            extra = DistillationLoss(teacher, pseudo, cfg.distill_config(), model.n_samples,
+                                     model.train_background, teacher_occupancy=occupancy)
+        result = train_field(field, rays, tcfg, extra_loss=extra, checkpoint=ckpt_dir / f"iter_{k}_train.pt",
+                             progress=progress)
+        teacher, occupancy = result.field, result.occupancy
+        teacher.eval()
+        ev = evaluate(teacher, scene, test_idx, out / f"iter_{k}" / "test", model, occupancy=occupancy,
+                      device=device, progress=progress)
+        rf = None if reliable_fraction is None or math.isnan(reliable_fraction) else float(reliable_fraction)
+        metrics["iterations"].append(dict(iteration=k, psnr=ev["psnr"], ssim=ev["ssim"], lpips=ev["lpips"],
+                                          avg=ev["avg"], reliable_fraction=rf,
+                                          seconds=time.perf_counter() - t_it, per_view=ev["per_view"]))
+        _save_teacher(teacher_path, teacher, occupancy, k, fingerprint, metrics["iterations"])
+        metrics["seconds_total"] = seconds_before + time.perf_counter() - t_run
+        atomic_write_text(metrics_path, json.dumps(metrics, indent=1))
+        echo(f"selftrain: iteration {k}: test PSNR {ev['psnr']:.2f} dB, SSIM {ev['ssim']:.3f}")
+    metrics["seconds_total"] = seconds_before + time.perf_counter() - t_run
+    atomic_write_text(metrics_path, json.dumps(metrics, indent=1))
+    return metrics

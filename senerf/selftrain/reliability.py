@@ -1,0 +1,287 @@
+"""Ray reliability by feature consistency across views (NumPy; cameras only via ``senerf.geometry``).
+
+A pseudo-view pixel, lifted with the teacher's rendered z-depth, is warped into every known view
+(``senerf.geometry.reproject`` with the known view's teacher-rendered z-depth as occlusion buffer).  The
+known view's features are bilinearly sampled at the warped ``uv`` (pixel centre ``i + 0.5``: array index
+``u - 0.5``), and the cosine similarity with the pseudo pixel's own feature is that view's score.  Warps
+that leave the image, land behind the camera or are occluded (``reproject``'s ``valid``) do not count.  A
+pixel's similarity is the maximum over valid known views, ``NO_MATCH = -1.0`` when there is none.
+
+Choices the paper leaves open, made here:
+* **Background** pseudo pixels (teacher opacity ``< opacity_threshold``, default 0.5) are *ignored*: they do
+  not enter the similarity distribution of the adaptive threshold, and they are neither reliable (no
+  colour/geometry distillation) nor unreliable (no prior target); they also never serve as reliable
+  neighbours of the prior.
+* **Thresholds** (``threshold_weights``): ``'adaptive'`` ``tau`` = the ``(1 - alpha)`` quantile
+  (``numpy.quantile``, linear interpolation) of all pseudo views' foreground similarities of the scene,
+  reliable iff ``s > tau``; ``'fixed'`` reliable iff ``s > tau`` (0.6); ``'unified'`` soft weight
+  ``sigmoid(beta (s - 0.7))`` on foreground pixels.
+
+Also: :func:`mask_quality` (precision / recall / false-positive rate of a reliable mask against a
+ground-truth mask) and :func:`gt_reliable_mask` (ground-truth mask from colour error, as in the paper's
+appendix).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .. import geometry
+
+__all__ = [
+    "NO_MATCH",
+    "ViewSimilarity",
+    "bilinear_sample",
+    "cosine_similarity",
+    "view_similarity",
+    "adaptive_threshold",
+    "resolve_threshold",
+    "threshold_weights",
+    "gt_reliable_mask",
+    "mask_quality",
+    "THRESHOLD_KINDS",
+]
+
+NO_MATCH = -1.0
+THRESHOLD_KINDS = ("adaptive", "fixed", "unified")
+
+
+@dataclass(frozen=True)
+class ViewSimilarity:
+    """Feature consistency of one pseudo view against the known views.
+
+    Attributes:
+        similarity: (H, W) float32, max over valid known views of the cosine similarity; ``NO_MATCH`` where
+            no known view sees the pixel.
+        per_view: (k, H, W) float32 cosine similarity per known view, ``NO_MATCH`` where invalid.
+        valid: (k, H, W) bool, the warp landed in the image, in front of the camera and unoccluded.
+        foreground: (H, W) bool, teacher opacity >= the opacity threshold.
+    """
+
+    similarity: np.ndarray
+    per_view: np.ndarray
+    valid: np.ndarray
+    foreground: np.ndarray
+
+
+def bilinear_sample(image: np.ndarray, uv: np.ndarray) -> np.ndarray:
+    """Bilinear lookup with the pixel-centre convention and edge clamping.
+
+    Args:
+        image: (H, W, C) array.
+        uv: (N, 2) continuous pixel coordinates (u = column, v = row); pixel (i, j)'s centre is
+            (i + 0.5, j + 0.5), so ``uv = (0.5, 0.5)`` returns ``image[0, 0]`` exactly.
+    Returns:
+        (N, C) float32.
+    """
+    image = np.asarray(image)
+    uv = np.asarray(uv, dtype=np.float64)
+    if image.ndim != 3:
+        raise ValueError(f"image must be (H, W, C), got {image.shape}")
+    if uv.ndim != 2 or uv.shape[1] != 2:
+        raise ValueError(f"uv must be (N, 2), got {uv.shape}")
+    h, w = image.shape[:2]
+    x = np.clip(uv[:, 0] - 0.5, 0.0, w - 1.0)
+    y = np.clip(uv[:, 1] - 0.5, 0.0, h - 1.0)
+    x0 = np.minimum(np.floor(x).astype(np.int64), w - 1)
+    y0 = np.minimum(np.floor(y).astype(np.int64), h - 1)
+    x1 = np.minimum(x0 + 1, w - 1)
+    y1 = np.minimum(y0 + 1, h - 1)
+    fx = (x - x0).astype(np.float32)[:, None]
+    fy = (y - y0).astype(np.float32)[:, None]
+    top = image[y0, x0] * (1 - fx) + image[y0, x1] * fx
+    bottom = image[y1, x0] * (1 - fx) + image[y1, x1] * fx
+    return (top * (1 - fy) + bottom * fy).astype(np.float32)
+
+
+def cosine_similarity(a: np.ndarray, b: np.ndarray, eps: float = 1e-8) -> np.ndarray:
+    """Cosine similarity along the last axis: ``a (..., C), b (..., C) -> (...)`` float32.
+
+    A zero vector (norm < eps) has similarity 0 with everything.
+    """
+    a = np.asarray(a, dtype=np.float32)
+    b = np.asarray(b, dtype=np.float32)
+    if a.shape != b.shape:
+        raise ValueError(f"shapes differ: {a.shape} vs {b.shape}")
+    num = np.einsum("...c,...c->...", a, b)
+    den = np.linalg.norm(a, axis=-1) * np.linalg.norm(b, axis=-1)
+    return (num / np.maximum(den, eps)).astype(np.float32)
+
+
+def _as_intrinsics_list(intrinsics, k: int) -> list:
+    if isinstance(intrinsics, (list, tuple)):
+        if len(intrinsics) != k:
+            raise ValueError(f"expected {k} known-view intrinsics, got {len(intrinsics)}")
+        return list(intrinsics)
+    return [intrinsics] * k
+
+
+def view_similarity(pseudo_features: np.ndarray, pseudo_z: np.ndarray, pseudo_opacity: np.ndarray,
+                    pseudo_intrinsics, pseudo_c2w: np.ndarray,
+                    known_features: np.ndarray, known_z: np.ndarray, known_intrinsics, known_c2w: np.ndarray,
+                    opacity_threshold: float = 0.5, rel_tol: float = 0.05, abs_tol: float = 0.0,
+                    ) -> ViewSimilarity:
+    """Per-pixel feature consistency of one pseudo view against all known views.
+
+    Args:
+        pseudo_features: (H, W, C) features of the teacher's pseudo-view render.
+        pseudo_z: (H, W) teacher z-depth of the pseudo view.
+        pseudo_opacity: (H, W) teacher accumulated opacity of the pseudo view.
+        pseudo_intrinsics: ``geometry.Intrinsics`` of the pseudo view (size H x W).
+        pseudo_c2w: (4, 4) pseudo camera-to-world (OpenCV).
+        known_features: (k, H', W', C) features of the known (real) images.
+        known_z: (k, H', W') teacher z-depth of the known views (occlusion buffers).
+        known_intrinsics: one ``Intrinsics`` shared by the known views (one batched warp) or a sequence of k.
+        known_c2w: (k, 4, 4).
+        opacity_threshold: foreground = opacity >= this.
+        rel_tol, abs_tol: occlusion tolerances handed to ``geometry.reproject`` (its test compares with the max
+            depth of the 2 x 2 footprint; 5 % relative slack absorbs the noise of rendered depth).
+    Returns:
+        :class:`ViewSimilarity`.
+    """
+    pseudo_features = np.asarray(pseudo_features, dtype=np.float32)
+    known_features = np.asarray(known_features, dtype=np.float32)
+    pseudo_z = np.asarray(pseudo_z, dtype=np.float64)
+    known_z = np.asarray(known_z, dtype=np.float64)
+    pseudo_opacity = np.asarray(pseudo_opacity)
+    known_c2w = np.asarray(known_c2w, dtype=np.float64)
+    if pseudo_features.ndim != 3:
+        raise ValueError(f"pseudo_features must be (H, W, C), got {pseudo_features.shape}")
+    h, w, c = pseudo_features.shape
+    if pseudo_z.shape != (h, w) or pseudo_opacity.shape != (h, w):
+        raise ValueError(f"pseudo_z and pseudo_opacity must be ({h}, {w}), got {pseudo_z.shape}, "
+                         f"{pseudo_opacity.shape}")
+    if known_features.ndim != 4 or known_features.shape[-1] != c:
+        raise ValueError(f"known_features must be (k, H', W', {c}), got {known_features.shape}")
+    k = known_features.shape[0]
+    if known_z.shape != known_features.shape[:3]:
+        raise ValueError(f"known_z must be {known_features.shape[:3]}, got {known_z.shape}")
+    if known_c2w.shape != (k, 4, 4):
+        raise ValueError(f"known_c2w must be ({k}, 4, 4), got {known_c2w.shape}")
+    foreground = pseudo_opacity >= opacity_threshold
+    per_view = np.full((k, h, w), NO_MATCH, dtype=np.float32)
+    valid = np.zeros((k, h, w), dtype=bool)
+    if k == 0:
+        return ViewSimilarity(np.full((h, w), NO_MATCH, np.float32), per_view, valid, foreground)
+    src_c2w = np.asarray(pseudo_c2w, dtype=np.float64)
+    if isinstance(known_intrinsics, (list, tuple)):  # per-view intrinsics: one warp call per view
+        intr = _as_intrinsics_list(known_intrinsics, k)
+        warps = [geometry.reproject(pseudo_z, pseudo_intrinsics, src_c2w, intr[j], known_c2w[j],
+                                    z_depth_dst=known_z[j], rel_tol=rel_tol, abs_tol=abs_tol) for j in range(k)]
+        uv_all = np.stack([u for u, _ in warps])
+        ok_all = np.stack([o for _, o in warps])
+    else:  # shared intrinsics: one batched call
+        uv_all, ok_all = geometry.reproject(pseudo_z, pseudo_intrinsics, src_c2w, known_intrinsics, known_c2w,
+                                            z_depth_dst=known_z, rel_tol=rel_tol, abs_tol=abs_tol)
+    flat_src = pseudo_features.reshape(-1, c)
+    for j in range(k):
+        ok = np.asarray(ok_all[j], dtype=bool) & np.isfinite(pseudo_z) & (pseudo_z > 0)
+        idx = np.flatnonzero(ok.reshape(-1))
+        if idx.size == 0:
+            continue
+        sampled = bilinear_sample(known_features[j], np.asarray(uv_all[j]).reshape(-1, 2)[idx])
+        per_view[j].reshape(-1)[idx] = cosine_similarity(flat_src[idx], sampled)
+        valid[j] = ok
+    similarity = per_view.max(axis=0)
+    return ViewSimilarity(similarity=similarity, per_view=per_view, valid=valid, foreground=foreground)
+
+
+def adaptive_threshold(similarities: np.ndarray, alpha: float) -> float:
+    """``tau`` = the ``(1 - alpha)`` quantile (linear interpolation) of ``similarities`` (any shape).
+
+    Raises ValueError on an empty sample or ``alpha`` outside [0, 1].
+    """
+    s = np.asarray(similarities, dtype=np.float64).reshape(-1)
+    if not 0.0 <= alpha <= 1.0:
+        raise ValueError(f"alpha must be in [0, 1], got {alpha}")
+    if s.size == 0:
+        raise ValueError("no similarities to take a quantile of")
+    return float(np.quantile(s, 1.0 - alpha))
+
+
+def resolve_threshold(kind: str, similarities: np.ndarray, alpha: float = 0.15, tau: float = 0.6) -> float | None:
+    """The hard threshold of ``kind`` for a scene: adaptive quantile, the fixed ``tau``, or None (unified).
+
+    Args:
+        similarities: (N,) foreground similarities of all pseudo views of the scene (adaptive only).
+    """
+    if kind == "adaptive":
+        s = np.asarray(similarities).reshape(-1)
+        s = s[s > NO_MATCH]  # pixels no known view sees carry no similarity
+        return adaptive_threshold(s, alpha) if s.size else float("inf")
+    if kind == "fixed":
+        return float(tau)
+    if kind == "unified":
+        return None
+    raise ValueError(f"unknown threshold kind {kind!r}; choose one of {THRESHOLD_KINDS}")
+
+
+def threshold_weights(similarity: np.ndarray, foreground: np.ndarray, kind: str, tau: float | None = None,
+                      beta: float = 16.0, center: float = 0.7) -> np.ndarray:
+    """Reliability weight per pixel in [0, 1]: binary for 'adaptive'/'fixed', soft for 'unified'.
+
+    Args:
+        similarity: (H, W) (or any shape) per-pixel max similarity.
+        foreground: same shape, bool; background pixels get weight 0.
+        kind: 'adaptive' | 'fixed' (reliable iff ``similarity > tau``) | 'unified'
+            (``sigmoid(beta (similarity - center))``).
+    Returns:
+        float32 array of the same shape.
+    """
+    s = np.asarray(similarity, dtype=np.float64)
+    fg = np.asarray(foreground, dtype=bool)
+    if s.shape != fg.shape:
+        raise ValueError(f"similarity {s.shape} and foreground {fg.shape} differ in shape")
+    if kind in ("adaptive", "fixed"):
+        if tau is None:
+            raise ValueError(f"threshold kind {kind!r} needs tau")
+        w = (s > tau).astype(np.float64)
+    elif kind == "unified":
+        w = 1.0 / (1.0 + np.exp(-beta * (s - center)))
+    else:
+        raise ValueError(f"unknown threshold kind {kind!r}; choose one of {THRESHOLD_KINDS}")
+    return np.where(fg, w, 0.0).astype(np.float32)
+
+
+def gt_reliable_mask(teacher_rgb: np.ndarray, gt_rgb: np.ndarray, max_error: float = 0.1) -> np.ndarray:
+    """Ground-truth reliability from colour: mean absolute RGB error ``< max_error``.
+
+    Args:
+        teacher_rgb, gt_rgb: (..., H, W, 3) in [0, 1].
+    Returns:
+        (..., H, W) bool.
+    """
+    a = np.asarray(teacher_rgb, dtype=np.float32)
+    b = np.asarray(gt_rgb, dtype=np.float32)
+    if a.shape != b.shape or a.shape[-1] != 3:
+        raise ValueError(f"teacher_rgb {a.shape} and gt_rgb {b.shape} must match and end in 3")
+    return np.abs(a - b).mean(axis=-1) < max_error
+
+
+def mask_quality(predicted: np.ndarray, truth: np.ndarray, region: np.ndarray | None = None) -> dict:
+    """Precision, recall and false-positive rate of a predicted reliable mask.
+
+    Args:
+        predicted: (...) bool, our reliable mask.
+        truth: (...) bool, the ground-truth reliable mask.
+        region: (...) bool, pixels to count (e.g. foreground); all when None.
+    Returns:
+        dict(precision, recall, fpr, tp, fp, fn, tn); a ratio with an empty denominator is NaN.
+    """
+    p = np.asarray(predicted, dtype=bool)
+    t = np.asarray(truth, dtype=bool)
+    if p.shape != t.shape:
+        raise ValueError(f"predicted {p.shape} and truth {t.shape} differ in shape")
+    r = np.ones_like(p) if region is None else np.asarray(region, dtype=bool)
+    tp = int(np.sum(p & t & r))
+    fp = int(np.sum(p & ~t & r))
+    fn = int(np.sum(~p & t & r))
+    tn = int(np.sum(~p & ~t & r))
+
+    def ratio(a: int, b: int) -> float:
+        return a / b if b else float("nan")
+
+    return dict(precision=ratio(tp, tp + fp), recall=ratio(tp, tp + fn), fpr=ratio(fp, fp + tn),
+                tp=tp, fp=fp, fn=fn, tn=tn)

@@ -1,0 +1,24 @@
+"""Training, evaluation and checkpointing of one radiance field (torch).
+
+Public API (see DESIGN.md): :class:`TrainConfig`, :class:`ModelConfig`, :func:`choose_model`,
+:func:`build_field`, :class:`RayBatchSource`, :func:`train_field`, :func:`evaluate`,
+:func:`render_views`, :func:`psnr`, :func:`ssim`, :func:`save_checkpoint`, :func:`load_checkpoint`.
+"""
+
+from .checkpoint import atomic_write_bytes, atomic_write_text, load_checkpoint, save_checkpoint
+from .config import (PRESETS, ModelConfig, TrainConfig, build_field, camera_aabb, choose_model,
+                     config_to_dict, preset_train_config)
+from .evaluate import depth_to_color, evaluate, render_views, write_png
+from .loop import TrainResult, background_color, lr_factor, make_occupancy, train_field
+from .metrics import LPIPS_UNAVAILABLE, mse, psnr, ssim
+from .rays import RayBatchSource, camera_rays, ray_aabb_bounds, ray_dist_to_z_depth
+
+__all__ = [
+    "TrainConfig", "ModelConfig", "PRESETS", "preset_train_config", "choose_model", "build_field",
+    "camera_aabb", "config_to_dict",
+    "RayBatchSource", "camera_rays", "ray_aabb_bounds", "ray_dist_to_z_depth",
+    "train_field", "TrainResult", "lr_factor", "make_occupancy", "background_color",
+    "evaluate", "render_views", "depth_to_color", "write_png",
+    "psnr", "ssim", "mse", "LPIPS_UNAVAILABLE",
+    "save_checkpoint", "load_checkpoint", "atomic_write_bytes", "atomic_write_text",
+]

@@ -1,0 +1,351 @@
+"""Training and model configuration (frozen dataclasses) and the scene-driven model choice.
+
+:func:`choose_model` looks at a :class:`senerf.data.Scene` and the training views and picks every model
+setting (field kind, bounding box or NDC, plane resolution, samples, background policy, occupancy grid),
+printing one line per choice.  Every choice can be overridden by name through ``overrides``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass, fields
+from typing import Any, Callable, Mapping
+
+import numpy as np
+
+from senerf.errors import InputError
+
+__all__ = [
+    "TrainConfig",
+    "ModelConfig",
+    "PRESETS",
+    "preset_train_config",
+    "choose_model",
+    "camera_aabb",
+    "config_to_dict",
+    "build_field",
+]
+
+_BACKGROUNDS = ("random", "white", "black")
+_FIELDS = ("kplanes", "nerf")
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    """Optimisation settings of one training run (teacher or student).
+
+    Attributes:
+        steps: optimiser steps.
+        batch_rays: rays per step.
+        lr: peak Adam learning rate.
+        warmup_steps: linear warm-up steps before the cosine decay.
+        lr_final_factor: the cosine schedule ends at ``lr * lr_final_factor``.
+        tv_weight: weight of ``field.regularizer()`` (plane total variation) in the loss.
+        occupancy_every: update the occupancy grid every that many steps (object scenes with a grid).
+        occupancy_warmup: steps before the first grid update (the grid starts all-occupied).
+        checkpoint_every: write an atomic checkpoint every that many steps (0: only at the end when a
+            checkpoint path is given).
+        seed: seed of the training generator (ray batches, sample jitter, backgrounds).
+        device: ``"cpu"`` or ``"cuda"`` (``"cuda:N"``).
+    """
+
+    steps: int = 1000
+    batch_rays: int = 4096
+    lr: float = 0.02
+    warmup_steps: int = 50
+    lr_final_factor: float = 0.05
+    tv_weight: float = 1e-4
+    occupancy_every: int = 8
+    occupancy_warmup: int = 16
+    checkpoint_every: int = 500
+    seed: int = 0
+    device: str = "cpu"
+
+    def __post_init__(self) -> None:
+        _positive_int(self.steps, "steps", allow_zero=True)
+        _positive_int(self.batch_rays, "batch_rays")
+        _positive_int(self.warmup_steps, "warmup_steps", allow_zero=True)
+        _positive_int(self.occupancy_every, "occupancy_every", allow_zero=True)
+        _positive_int(self.occupancy_warmup, "occupancy_warmup", allow_zero=True)
+        _positive_int(self.checkpoint_every, "checkpoint_every", allow_zero=True)
+        if not (math.isfinite(self.lr) and self.lr > 0):
+            raise InputError(f"must be a positive number, got {self.lr!r}", field="lr")
+        if not (0.0 <= self.lr_final_factor <= 1.0):
+            raise InputError(f"must be in [0, 1], got {self.lr_final_factor!r}", field="lr_final_factor")
+        if not (math.isfinite(self.tv_weight) and self.tv_weight >= 0):
+            raise InputError(f"must be >= 0, got {self.tv_weight!r}", field="tv_weight")
+        if not isinstance(self.seed, int) or isinstance(self.seed, bool):
+            raise InputError(f"must be an integer, got {self.seed!r}", field="seed")
+        if not (self.device == "cpu" or str(self.device).startswith("cuda")):
+            raise InputError(f"must be 'cpu' or 'cuda', got {self.device!r}", field="device")
+
+
+@dataclass(frozen=True)
+class ModelConfig:
+    """What the field is and how its rays are rendered (chosen by :func:`choose_model`).
+
+    Attributes:
+        field: ``"kplanes"`` or ``"nerf"``.
+        aabb: ``((xmin, ymin, zmin), (xmax, ymax, zmax))`` of the field, in world units, or in NDC when
+            ``ndc`` is true.
+        ndc: forward-facing scene rendered in normalised device coordinates (LLFF convention).
+        ndc_near: world-space near plane of the NDC warp (``ndc`` only).
+        near, far: constant ray bounds, or ``None`` to intersect every ray with ``aabb``.
+        resolution: base plane resolution (K-Planes) per axis.
+        multires: resolution multipliers of the plane scales.
+        n_features: features per plane.
+        density_shift: added to the raw density before the exponential (K-Planes only); a negative shift
+            starts the field nearly empty so the occupancy grid can skip unobserved space early.
+        view_dependent: colour depends on the view direction.
+        n_samples: samples per ray (stratified, one per evenly spaced bin).
+        occupancy_resolution: occupancy grid cells per axis (0: no grid).
+        occupancy_threshold: density above which a grid cell is occupied.
+        occupancy_decay: the grid's running maximum forgets by this factor per update.
+        train_background: ``"random"`` (per batch), ``"white"`` or ``"black"``.
+        eval_background: ``"white"`` or ``"black"``.
+    """
+
+    field: str = "kplanes"
+    aabb: tuple = ((-1.5, -1.5, -1.5), (1.5, 1.5, 1.5))
+    ndc: bool = False
+    ndc_near: float = 1.0
+    near: float | None = None
+    far: float | None = None
+    resolution: int = 64
+    multires: tuple = (1, 2)
+    n_features: int = 16
+    density_shift: float = 0.0
+    view_dependent: bool = True
+    n_samples: int = 48
+    occupancy_resolution: int = 64
+    occupancy_threshold: float = 0.1
+    occupancy_decay: float = 0.7
+    train_background: str = "random"
+    eval_background: str = "white"
+
+    def __post_init__(self) -> None:
+        if self.field not in _FIELDS:
+            raise InputError(f"must be one of {', '.join(_FIELDS)}, got {self.field!r}", field="field")
+        box = np.asarray(self.aabb, dtype=np.float64)
+        if box.shape != (2, 3) or not np.all(np.isfinite(box)) or not np.all(box[1] > box[0]):
+            raise InputError(f"must be ((xmin,ymin,zmin),(xmax,ymax,zmax)) with max > min, got {self.aabb!r}",
+                             field="aabb")
+        object.__setattr__(self, "aabb", tuple(tuple(float(v) for v in row) for row in box))
+        object.__setattr__(self, "multires", tuple(int(m) for m in self.multires))
+        if (self.near is None) != (self.far is None):
+            raise InputError("give both near and far, or neither", field="near/far")
+        if self.near is not None and not (0 <= self.near < self.far):
+            raise InputError(f"need 0 <= near < far, got {self.near!r}, {self.far!r}", field="near/far")
+        if not (math.isfinite(self.ndc_near) and self.ndc_near > 0):
+            raise InputError(f"must be positive, got {self.ndc_near!r}", field="ndc_near")
+        for name in ("resolution", "n_features", "n_samples"):
+            _positive_int(getattr(self, name), name)
+        _positive_int(self.occupancy_resolution, "occupancy_resolution", allow_zero=True)
+        if not (math.isfinite(self.occupancy_threshold) and self.occupancy_threshold >= 0):
+            raise InputError(f"must be >= 0, got {self.occupancy_threshold!r}", field="occupancy_threshold")
+        if not (0.0 <= self.occupancy_decay <= 1.0):
+            raise InputError(f"must be in [0, 1], got {self.occupancy_decay!r}", field="occupancy_decay")
+        if not self.multires or any(m < 1 for m in self.multires):
+            raise InputError(f"must be positive integers, got {self.multires!r}", field="multires")
+        if self.train_background not in _BACKGROUNDS:
+            raise InputError(f"must be one of {', '.join(_BACKGROUNDS)}", field="train_background")
+        if self.eval_background not in ("white", "black"):
+            raise InputError("must be 'white' or 'black'", field="eval_background")
+
+
+def _positive_int(value: Any, name: str, allow_zero: bool = False) -> None:
+    lo = 0 if allow_zero else 1
+    if not isinstance(value, (int, np.integer)) or isinstance(value, bool) or value < lo:
+        raise InputError(f"must be an integer >= {lo}, got {value!r}", field=name)
+
+
+PRESETS: dict[str, dict[str, Any]] = {
+    # "train": TrainConfig fields, "model": ModelConfig overrides (step counts measured on the 2-core CPU
+    # machine at 100x100, see the CLI report: fast ~1 min for a 3-view baseline).
+    "fast": dict(train=dict(steps=500, batch_rays=2048), model={}),
+    "balanced": dict(train=dict(steps=1000, batch_rays=4096), model={}),
+    "quality": dict(train=dict(steps=3000, batch_rays=4096), model=dict(n_samples=64)),
+}
+
+
+def preset_train_config(preset: str = "balanced", **overrides: Any) -> TrainConfig:
+    """A :class:`TrainConfig` from a named preset (``fast``, ``balanced``, ``quality``) plus overrides."""
+    if preset not in PRESETS:
+        raise InputError(f"unknown preset {preset!r}; choose one of {', '.join(PRESETS)}", field="preset")
+    return TrainConfig(**{**PRESETS[preset]["train"], **overrides})
+
+
+def config_to_dict(cfg) -> dict:
+    """A JSON-ready dict of a config dataclass (tuples become lists)."""
+    return json_ready(dataclasses.asdict(cfg))
+
+
+def json_ready(value):
+    if isinstance(value, dict):
+        return {str(k): json_ready(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [json_ready(v) for v in value]
+    if isinstance(value, np.generic):
+        return value.item()
+    return value
+
+
+def camera_aabb(c2w: np.ndarray, fov_deg: float, margin: float = 1.05) -> tuple[np.ndarray, float, np.ndarray]:
+    """A cube the cameras look at: centre = point nearest all optical axes, half size = what one camera
+    sees across at the centre's distance.
+
+    Args:
+        c2w: (n, 4, 4) camera-to-world poses (OpenCV).
+        fov_deg: the narrower field of view of the cameras, degrees.
+        margin: multiplies the half size.
+
+    Returns:
+        (aabb (2, 3) float64, mean camera distance to the centre, centre (3,))
+    """
+    from senerf.geometry import closest_point_to_axes
+
+    c2w = np.asarray(c2w, dtype=np.float64)
+    if c2w.ndim != 3 or c2w.shape[1:] != (4, 4):
+        raise ValueError(f"c2w must be (n, 4, 4), got {c2w.shape}")
+    try:
+        centre = np.asarray(closest_point_to_axes(c2w), dtype=np.float64)
+    except ValueError:  # one camera or parallel axes: along the mean axis, as far as the origin is
+        axis = c2w[:, :3, 2].mean(axis=0)
+        axis /= max(np.linalg.norm(axis), 1e-12)
+        origin = c2w[:, :3, 3].mean(axis=0)
+        centre = origin + axis * max(np.linalg.norm(origin), 1.0)
+    dist = float(np.mean(np.linalg.norm(c2w[:, :3, 3] - centre, axis=-1)))
+    half = dist * math.tan(math.radians(fov_deg) / 2) * margin
+    half = min(half, 0.95 * dist / math.sqrt(3))  # keep the cameras outside the box
+    return np.stack([centre - half, centre + half]), dist, centre
+
+
+def _plane_resolution(image_size: int, extent_px: float) -> int:
+    """Base plane resolution: about the pixels the box covers in one image, /2, multiple of 8, in [32, 128]."""
+    res = int(round(extent_px / 2 / 8)) * 8
+    return int(min(128, max(32, res)))
+
+
+def choose_model(scene, train_idx, overrides: Mapping[str, Any] | None = None,
+                 echo: Callable[[str], None] = print) -> ModelConfig:
+    """Pick the model for ``scene`` from its cameras and images, printing one line per choice.
+
+    Args:
+        scene: a :class:`senerf.data.Scene`.
+        train_idx: (n_train,) indices of the training images into the scene's arrays.
+        overrides: ``{ModelConfig field: value}``; an overridden setting is printed as ``(override)``.
+        echo: where the lines go (``print`` by default).
+
+    Returns:
+        the :class:`ModelConfig`.
+    """
+    overrides = dict(overrides or {})
+    names = {f.name for f in fields(ModelConfig)}
+    unknown = sorted(set(overrides) - names)
+    if unknown:
+        raise InputError(f"unknown model setting(s) {', '.join(unknown)}; known: {', '.join(sorted(names))}",
+                         field="overrides")
+    train_idx = np.asarray(train_idx, dtype=np.int64).reshape(-1)
+    if train_idx.size == 0:
+        raise InputError("no training views", field="train_idx")
+    H, W = scene.rgb.shape[1:3]
+    intr = scene.intrinsics
+    fov_x = math.degrees(2 * math.atan(0.5 * W / intr.fx))
+    fov_y = math.degrees(2 * math.atan(0.5 * H / intr.fy))
+    chosen: dict[str, Any] = {}
+    why: dict[str, str] = {}
+
+    if scene.kind == "forward_facing":
+        near = scene.near if scene.near is not None else 1.0
+        chosen.update(ndc=True, ndc_near=float(0.75 * near), aabb=((-1.5, -1.5, -1.0), (1.5, 1.5, 1.0)),
+                      near=None, far=None, occupancy_resolution=0)
+        why["ndc"] = f"forward-facing scene: NDC with near plane {0.75 * near:.3g} (0.75 x dataset near)"
+        why["aabb"] = "NDC cube [-1.5,1.5]x[-1.5,1.5]x[-1,1]"
+        why["near"] = "NDC rays, t' in [0, 1]"
+        why["occupancy_resolution"] = "no occupancy grid in NDC"
+        extent_px = max(H, W)
+        chosen["multires"] = (1, 2, 4)
+    else:
+        cams = np.asarray(scene.c2w)[train_idx] if train_idx.size >= 2 else np.asarray(scene.c2w)
+        box, dist, centre = camera_aabb(cams, min(fov_x, fov_y))
+        # 3 decimals at unit scale; more for small scenes (a 1e-4-scale scene would round to an empty box)
+        half0 = float(box[1, 0] - box[0, 0]) / 2
+        box = np.round(box, max(3, 3 - math.floor(math.log10(half0))) if half0 > 0 else 3)
+        chosen.update(ndc=False, aabb=tuple(map(tuple, box)), near=None, far=None,
+                      occupancy_resolution=64)
+        half = (box[1, 0] - box[0, 0]) / 2
+        why["aabb"] = (f"cube centre ({centre[0]:.2f}, {centre[1]:.2f}, {centre[2]:.2f}) half size {half:.2f} "
+                       f"(camera distance {dist:.2f} x tan(fov/2) x 1.05)")
+        why["near"] = "per-ray near/far from the ray-box intersection"
+        why["occupancy_resolution"] = "64^3 occupancy grid skips empty space"
+        if 2 * half < 1.0:  # density is per world unit: a box s < 1 unit wide starts 1/s times denser
+            chosen["density_shift"] = chosen.get("density_shift", 0.0) - math.log(2 * half)
+        extent_px = 2 * half / dist * intr.fx  # the box's width in pixels at the centre's distance
+        chosen["multires"] = (1, 2)
+    res = _plane_resolution(max(H, W), extent_px)
+    chosen["resolution"] = res
+    why["resolution"] = f"base {res} (box ~{extent_px:.0f} px wide in {W}x{H} images), scales {chosen['multires']}"
+    chosen["n_features"] = 16
+    chosen["n_samples"] = 48 if not chosen["ndc"] else 64
+    why["n_samples"] = f"{chosen['n_samples']} samples per ray"
+    if scene.alpha is not None and getattr(scene, "background", None) is not None:
+        bg = tuple(float(v) for v in scene.background)
+        name = {(1.0, 1.0, 1.0): "white", (0.0, 0.0, 0.0): "black"}.get(bg)
+        if name is None:
+            raise InputError(f"images were composited onto {bg} at load time; load them without a background "
+                             "(or onto white/black)", field="background")
+        chosen.update(train_background=name, eval_background=name)
+        why["train_background"] = f"images composited onto {name} at load time: trained and evaluated on {name}"
+    elif scene.alpha is not None:
+        chosen.update(train_background="random", eval_background="white")
+        why["train_background"] = "RGBA images: random background colour per batch, evaluated on white"
+    else:
+        chosen.update(train_background="black", eval_background="black")
+        why["train_background"] = "RGB images: rendered over black"
+    chosen["view_dependent"] = True
+    chosen["field"] = "kplanes"
+    why["field"] = "K-Planes (the paper's main backbone)"
+
+    cfg_values = {**chosen, **overrides}
+    try:
+        cfg = ModelConfig(**cfg_values)
+    except TypeError as exc:  # pragma: no cover - names are checked above
+        raise InputError(str(exc), field="overrides") from None
+    for key in ("field", "ndc", "aabb", "near", "resolution", "n_samples", "occupancy_resolution",
+                "train_background", "view_dependent"):
+        if key in overrides:
+            echo(f"model: {key} = {getattr(cfg, key)!r} (override)")
+        elif key in why:
+            echo(f"model: {key}: {why[key]}")
+        else:
+            echo(f"model: {key} = {getattr(cfg, key)!r}")
+    for key in sorted(set(overrides) - {"field", "ndc", "aabb", "near", "resolution", "n_samples",
+                                         "occupancy_resolution", "train_background", "view_dependent"}):
+        echo(f"model: {key} = {getattr(cfg, key)!r} (override)")
+    return cfg
+
+
+def build_field(model: ModelConfig, seed: int = 0, steps: int | None = None):
+    """A freshly initialised field for ``model`` (weights drawn from a CPU generator seeded ``seed``).
+
+    Args:
+        model: the :class:`ModelConfig`.
+        seed: initialisation seed.
+        steps: training steps; a NeRF field anneals its frequencies over the first quarter of them.
+
+    Returns:
+        a :class:`senerf.fields.KPlanesField` or :class:`senerf.fields.NeRFField` on the CPU.
+    """
+    import torch
+
+    from senerf.fields import KPlanesField, NeRFField
+
+    gen = torch.Generator()
+    gen.manual_seed(int(seed))
+    if model.field == "kplanes":
+        return KPlanesField(model.aabb, resolution=model.resolution, n_features=model.n_features,
+                            multires=model.multires, view_dependent=model.view_dependent,
+                            density_shift=model.density_shift, generator=gen)
+    anneal = None if steps is None else max(1, int(steps) // 4)
+    return NeRFField(aabb=model.aabb, view_dependent=model.view_dependent, anneal_steps=anneal, generator=gen)

@@ -1,0 +1,221 @@
+"""The training loop: Adam with linear warm-up + cosine decay, plane TV, occupancy grid, checkpoints.
+
+Deterministic on the CPU for a given ``TrainConfig.seed``: every random draw (ray batches, sample jitter,
+background colours, the ``extra_loss`` hook) comes from one ``torch.Generator`` on the training device
+whose state is checkpointed, so a resumed run reproduces the uninterrupted one bit for bit.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+import time
+from dataclasses import dataclass, field as dc_field
+from pathlib import Path
+from typing import Callable
+
+import torch
+
+from senerf.errors import InputError
+
+from .checkpoint import load_checkpoint, save_checkpoint
+from .config import TrainConfig, config_to_dict
+from .rays import RayBatchSource
+
+__all__ = ["train_field", "TrainResult", "lr_factor", "make_occupancy", "background_color", "ExtraLoss"]
+
+#: ``extra_loss(field, step, generator) -> (scalar loss tensor, {name: float})``
+ExtraLoss = Callable[[torch.nn.Module, int, torch.Generator], "tuple[torch.Tensor, dict]"]
+
+
+@dataclass
+class TrainResult:
+    """What :func:`train_field` hands back.
+
+    Attributes:
+        field: the trained field (the same module that was passed in, on ``cfg.device``).
+        occupancy: the trained :class:`senerf.fields.OccupancyGrid`, or ``None``.
+        steps: steps done in total (including those before a resume).
+        resumed_from: step the run resumed from (0 for a fresh run).
+        seconds: wall time of this call.
+        history: ``[{step, loss, psnr, lr, ...extra logs}]`` every ``log_every`` steps.
+    """
+
+    field: torch.nn.Module
+    occupancy: object | None
+    steps: int
+    resumed_from: int
+    seconds: float
+    history: list = dc_field(default_factory=list)
+
+
+def lr_factor(step: int, cfg: TrainConfig) -> float:
+    """Learning-rate multiplier at ``step``: linear warm-up to 1, then cosine to ``lr_final_factor``."""
+    if step < cfg.warmup_steps:
+        return (step + 1) / cfg.warmup_steps
+    span = max(cfg.steps - cfg.warmup_steps, 1)
+    progress = min((step - cfg.warmup_steps) / span, 1.0)
+    return cfg.lr_final_factor + (1.0 - cfg.lr_final_factor) * 0.5 * (1.0 + math.cos(math.pi * progress))
+
+
+def make_occupancy(model, device):
+    """The occupancy grid the model asks for (``None`` in NDC or when ``occupancy_resolution == 0``)."""
+    if model.ndc or model.occupancy_resolution == 0:
+        return None
+    from senerf.fields import OccupancyGrid
+
+    grid = OccupancyGrid(model.aabb, model.occupancy_resolution, threshold=model.occupancy_threshold,
+                         decay=model.occupancy_decay)
+    return grid.to(device)
+
+
+def background_color(policy: str, generator: torch.Generator, device) -> torch.Tensor:
+    """The background colour ``(3,)`` of a batch: white, black, or uniform random (one per batch)."""
+    if policy == "white":
+        return torch.ones(3, device=device)
+    if policy == "black":
+        return torch.zeros(3, device=device)
+    if policy == "random":
+        return torch.rand(3, generator=generator, device=device)
+    raise ValueError(f"unknown background policy {policy!r}")
+
+
+def _fingerprint(cfg: TrainConfig, rays: RayBatchSource, field: torch.nn.Module) -> str:
+    """Identity of a run: what must match for a checkpoint to be resumed (not the device)."""
+    desc = dict(train={k: v for k, v in config_to_dict(cfg).items() if k not in ("device", "checkpoint_every")},
+                model=config_to_dict(rays.model), n_rays=len(rays),
+                params={k: list(v.shape) for k, v in field.state_dict().items()})
+    return hashlib.sha256(json.dumps(desc, sort_keys=True).encode()).hexdigest()[:16]
+
+
+def _state(field, optimizer, generator, occupancy, step: int, fingerprint: str) -> dict:
+    state = dict(format="senerf-train-1", step=int(step), fingerprint=fingerprint,
+                 field=field.state_dict(), optimizer=optimizer.state_dict(),
+                 generator=generator.get_state())
+    if occupancy is not None:
+        state["occupancy"] = occupancy.state_dict()
+    return state
+
+
+def _restore(path: Path, field, optimizer, generator, occupancy, fingerprint: str, device) -> int:
+    state = load_checkpoint(path, map_location=device)
+    if state.get("format") != "senerf-train-1":
+        raise InputError("not a senerf training checkpoint", file=path)
+    if state.get("fingerprint") != fingerprint:
+        raise InputError("checkpoint belongs to a different training configuration; delete it or use "
+                         "another output folder", file=path)
+    field.load_state_dict(state["field"])
+    optimizer.load_state_dict(state["optimizer"])
+    generator.set_state(state["generator"].cpu())
+    if occupancy is not None:
+        occupancy.load_state_dict(state["occupancy"])
+    return int(state["step"])
+
+
+def train_field(field: torch.nn.Module, rays: RayBatchSource, cfg: TrainConfig,
+                extra_loss: ExtraLoss | None = None, checkpoint: str | Path | None = None,
+                progress: bool = True, log_every: int = 25) -> TrainResult:
+    """Train ``field`` on ``rays`` with the photometric MSE (+ TV, + ``extra_loss``).
+
+    Args:
+        field: a :class:`senerf.fields.RadianceField`; moved to ``cfg.device``.
+        rays: the training rays (on ``cfg.device``); ``rays.model`` gives the render settings
+            (samples, background policy, occupancy grid).
+        cfg: optimisation settings.
+        extra_loss: ``extra_loss(field, step, generator) -> (scalar tensor, {name: float})`` added to the
+            loss every step (self-training's distillation losses); must draw randomness only from
+            ``generator``.
+        checkpoint: a ``.pt`` path: resumed from when it exists, written atomically every
+            ``cfg.checkpoint_every`` steps and at the end.
+        progress: show a tqdm bar (step, loss, PSNR, rays/s).
+        log_every: steps between history entries / progress updates.
+
+    Returns:
+        :class:`TrainResult`.
+    """
+    from senerf.fields import render_rays
+
+    if not isinstance(rays, RayBatchSource):
+        raise ValueError(f"rays must be a RayBatchSource, got {type(rays).__name__}")
+    device = torch.device(cfg.device)
+    if device.type == "cuda" and not torch.cuda.is_available():
+        raise InputError("CUDA was requested but torch sees no GPU", field="device")
+    if rays.device.type != device.type:
+        raise ValueError(f"rays are on {rays.device}, the config asks for {device}")
+    model = rays.model
+    field.to(device)
+    field.train()
+    generator = torch.Generator(device=device)
+    generator.manual_seed(cfg.seed)
+    optimizer = torch.optim.Adam(field.parameters(), lr=cfg.lr, eps=1e-15)
+    occupancy = make_occupancy(model, device)
+    fingerprint = _fingerprint(cfg, rays, field)
+    start = 0
+    ckpt = Path(checkpoint) if checkpoint is not None else None
+    if ckpt is not None and ckpt.exists():
+        start = _restore(ckpt, field, optimizer, generator, occupancy, fingerprint, device)
+
+    history: list[dict] = []
+    t_start = time.perf_counter()
+    bar = None
+    if progress:
+        from tqdm.auto import tqdm
+
+        bar = tqdm(total=cfg.steps, initial=start, desc="train", unit="step", dynamic_ncols=True)
+    t_log, rays_since = time.perf_counter(), 0
+    for step in range(start, cfg.steps):
+        for group in optimizer.param_groups:
+            group["lr"] = cfg.lr * lr_factor(step, cfg)
+        if hasattr(field, "set_progress"):
+            field.set_progress(step)
+        if occupancy is not None and step >= cfg.occupancy_warmup and cfg.occupancy_every \
+                and (step - cfg.occupancy_warmup) % cfg.occupancy_every == 0:
+            occupancy.update(field)
+        use_grid = occupancy if (occupancy is not None and step >= cfg.occupancy_warmup) else None
+
+        batch = rays.sample(cfg.batch_rays, generator)
+        bg = background_color(model.train_background, generator, device)
+        target = batch["rgb"]
+        if "alpha" in batch:
+            a = batch["alpha"][:, None]
+            target = target * a + bg * (1.0 - a)
+        out = render_rays(field, batch["origins"], batch["dirs"], batch["near"], batch["far"],
+                          model.n_samples, generator, bg, occupancy=use_grid, randomized=True)
+        photo = torch.mean((out["rgb"] - target) ** 2)
+        loss = photo
+        if cfg.tv_weight > 0:
+            loss = loss + cfg.tv_weight * field.regularizer()
+        logs: dict = {}
+        if extra_loss is not None:
+            extra, logs = extra_loss(field, step, generator)
+            loss = loss + extra
+        optimizer.zero_grad(set_to_none=True)
+        loss.backward()
+        optimizer.step()
+        rays_since += cfg.batch_rays
+
+        done = step + 1
+        if done % log_every == 0 or done == cfg.steps:
+            loss_v, photo_v = float(loss.detach().cpu()), float(photo.detach().cpu())
+            if not math.isfinite(loss_v):
+                raise RuntimeError(f"loss became {loss_v} at step {done}; check the ray bounds and lr")
+            now = time.perf_counter()
+            rate = rays_since / max(now - t_log, 1e-9)
+            t_log, rays_since = now, 0
+            entry = dict(step=done, loss=loss_v, psnr=-10.0 * math.log10(max(photo_v, 1e-12)),
+                         lr=optimizer.param_groups[0]["lr"], rays_per_s=rate,
+                         **{k: float(v) for k, v in logs.items()})
+            history.append(entry)
+            if bar is not None:
+                bar.set_postfix(loss=f"{loss_v:.4f}", psnr=f"{entry['psnr']:.2f}", rays_s=f"{rate:.0f}")
+        if bar is not None:
+            bar.update(1)
+        if ckpt is not None and ((cfg.checkpoint_every and done % cfg.checkpoint_every == 0)
+                                 or done == cfg.steps):
+            save_checkpoint(ckpt, _state(field, optimizer, generator, occupancy, done, fingerprint))
+    if bar is not None:
+        bar.close()
+    field.eval()
+    return TrainResult(field=field, occupancy=occupancy, steps=max(cfg.steps, start), resumed_from=start,
+                       seconds=time.perf_counter() - t_start, history=history)

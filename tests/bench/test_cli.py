@@ -1,0 +1,72 @@
+"""``senerf-bench`` end to end with the fake fit: run (resume), summarize, report, plot."""
+
+from __future__ import annotations
+
+import shlex
+
+import imageio.v3 as iio
+
+from senerf.bench.cli import main
+from senerf.bench.report import PAPER_NUMBERS, make_report
+from senerf.bench.results import load_results
+
+
+def _run_args(scene, out, fit, *extra):
+    return ["run", "--scenes", str(scene), "--protocols", "synthetic-extreme3@100", "--methods", "baseline",
+            "senerf", "--presets", "fast", "balanced", "--seeds", "0", "1", "--iterations", "2", "--out",
+            str(out), "--workers", "2", "--fit-command", shlex.join(fit), *extra]
+
+
+def test_run_resume_summarize_report_plot(blender_scene, fake_fit_command, tmp_path, monkeypatch, capsys):
+    out = tmp_path / "bench"
+    monkeypatch.setenv("FAKE_FIT_CRASH_SEEDS", "1")
+    assert main(_run_args(blender_scene, out, fake_fit_command)) == 1          # seed 1 runs crashed
+    monkeypatch.delenv("FAKE_FIT_CRASH_SEEDS")
+    capsys.readouterr()
+    assert main(_run_args(blender_scene, out, fake_fit_command, "--dry-run")) == 0
+    dry = capsys.readouterr().out
+    assert "4 already finished, 4 to run" in dry and "--seed 1" in dry
+    assert sum(ln.startswith("senerf-fit ") for ln in dry.splitlines()) == 4
+    assert main(_run_args(blender_scene, out, fake_fit_command)) == 0
+    records, bad = load_results(out / "results.jsonl")
+    assert bad == 0 and len([r for r in records if r["status"] == "failed"]) == 4
+    assert records[0]["bench_command"][:2] == ["senerf-bench", "run"]
+    assert all(r["machine"].get("cores") for r in records if r["status"] == "ok")
+
+    capsys.readouterr()
+    assert main(["summarize", str(out / "results.jsonl"), "--final"]) == 0
+    table = capsys.readouterr().out
+    # fake fit: PSNR = 20 + iteration + seed / 10; seeds 0 and 1 -> mean 22.05, std 0.07 at iteration 2
+    assert "22.05 ± 0.07" in table and "20.05 ± 0.07" in table
+
+    report_path = tmp_path / "section.md"
+    assert main(["report", str(out / "results.jsonl"), "--out", str(report_path)]) == 0
+    text = report_path.read_text()
+    for needle in ("14.67 / 0.68 / 0.31", "16.65 / 0.75 / 0.24", "17.49", "ours 100x100", "800x800",
+                   "senerf-bench run --scenes", "senerf-bench report", "22.05 ± 0.07", "torch"):
+        assert needle in text, needle
+
+    assert main(["plot", str(out / "results.jsonl"), "--out-dir", str(tmp_path / "plots")]) == 0
+    pngs = sorted((tmp_path / "plots").glob("*.png"))
+    assert [p.name.split("_")[0] for p in pngs] == ["frontier", "iterations"]
+    assert all(iio.imread(p).ndim == 3 for p in pngs)
+
+
+def test_bad_input_exits_2(tmp_path, capsys):
+    assert main(["run", "--scenes", str(tmp_path / "missing")]) == 2
+    assert main(["run", "--scenes", str(tmp_path), "--protocols", "nope@1"]) == 2
+    assert main(["summarize", str(tmp_path / "none.jsonl")]) == 2
+    assert "error" in capsys.readouterr().err
+
+
+def test_report_paper_rows_per_protocol():
+    line = {"run_key": "k", "attempt": "a", "status": "ok", "scene": "fern", "protocol": "llff3@504x378",
+            "method": "baseline", "preset": "fast", "seed": 0, "iterations": 0, "iteration": 0, "psnr": 17.0,
+            "ssim": 0.5, "lpips": "unavailable", "avg": "unavailable", "seconds_cumulative": 60.0,
+            "peak_memory_mib": 900.0, "commit": "abc", "machine": {"cpu": "X"}, "timestamp": "2026-01-01T00:00",
+            "bench_command": ["senerf-bench", "run", "--scenes", "fern"]}
+    text = make_report([line], ["senerf-bench", "report", "r.jsonl"])
+    assert "K-Planes (paper): 18.22" in text and "FreeNeRF: 19.63" in text
+    assert "ours 504x378" in text and "paper 504x378." in text
+    assert "`senerf-bench run --scenes fern`" in text and "abc" in text
+    assert len({(r.family, r.scene, r.label) for r in PAPER_NUMBERS}) == len(PAPER_NUMBERS)

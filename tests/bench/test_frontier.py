@@ -1,0 +1,33 @@
+"""benchmarks/frontier.py through the harness with the fake fit: dry run, then a full (fake) run."""
+
+from __future__ import annotations
+
+import importlib.util
+import shlex
+from pathlib import Path
+
+import imageio.v3 as iio
+
+FRONTIER = Path(__file__).resolve().parents[2] / "benchmarks" / "frontier.py"
+
+
+def _load():
+    spec = importlib.util.spec_from_file_location("frontier_under_test", FRONTIER)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def test_frontier_dry_run_and_fake_run(blender_scene, fake_fit_command, tmp_path, capsys):
+    frontier = _load()
+    out = tmp_path / "fr"
+    base = ["--scene", str(blender_scene), "--out", str(out), "--iterations", "2"]
+    assert frontier.main([*base, "--dry-run"]) == 0
+    fits = [ln for ln in capsys.readouterr().out.splitlines() if ln.startswith("senerf-fit ")]
+    assert len(fits) == 2 * 3                              # baseline and SE-NeRF x 3 presets
+    assert all("--protocol extreme --downscale 8" in f for f in fits)
+    assert {f.split("--preset ")[1].split()[0] for f in fits} == {"fast", "balanced", "quality"}
+    assert frontier.main([*base, "--fit-command", shlex.join(fake_fit_command), "--workers", "2"]) == 0
+    text = (out / "frontier.md").read_text()
+    assert "16.65 / 0.75 / 0.24" in text and "python benchmarks/frontier.py" in text
+    assert iio.imread(out / "frontier.png").ndim == 3

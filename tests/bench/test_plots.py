@@ -1,0 +1,69 @@
+"""Analysis helpers: angular distance to the training views, mask confusion, plot files."""
+
+from __future__ import annotations
+
+import imageio.v3 as iio
+import numpy as np
+import pytest
+
+from senerf.bench.plots import mask_confusion, nearest_view_angles, plot_mask_quality, plot_psnr_vs_angle
+
+
+def _pose_at(center):
+    c2w = np.eye(4)
+    c2w[:3, 3] = center
+    return c2w
+
+
+def test_nearest_view_angles_known_geometry():
+    train = np.stack([_pose_at([4, 0, 0]), _pose_at([0, 4, 0])])
+    test = np.stack([_pose_at([2, 0, 0]), _pose_at([0, 0, 3]), _pose_at([1, 1, 0]), _pose_at([-5, 0, 0])])
+    np.testing.assert_allclose(nearest_view_angles(train, test), [0.0, 90.0, 45.0, 90.0], atol=1e-9)
+    shifted = nearest_view_angles(train + _pose_at([1, 1, 1]) - np.eye(4), test + _pose_at([1, 1, 1]) - np.eye(4),
+                                  center=(1, 1, 1))
+    np.testing.assert_allclose(shifted, [0.0, 90.0, 45.0, 90.0], atol=1e-9)
+    with pytest.raises(ValueError):
+        nearest_view_angles(np.eye(4), test)
+
+
+def test_mask_confusion_counts():
+    pred = np.array([[1, 1, 0, 0], [1, 0, 0, 1]], bool)
+    true = np.array([[1, 0, 0, 1], [1, 0, 1, 1]], bool)
+    m = mask_confusion(pred, true)
+    assert (m["tp"], m["fp"], m["fn"], m["tn"]) == (3, 1, 2, 2)
+    assert m["precision"] == pytest.approx(0.75) and m["recall"] == pytest.approx(0.6)
+    assert m["fpr"] == pytest.approx(1 / 3)
+    assert np.isnan(mask_confusion(np.zeros(3, bool), np.zeros(3, bool))["precision"])
+
+
+def test_analysis_plots_write_pngs(tmp_path):
+    rng = np.random.default_rng(0)
+    a = rng.uniform(0, 90, 20)
+    p1 = plot_psnr_vs_angle({"senerf": a}, {"senerf": 25 - 0.1 * a}, tmp_path / "angle.png")
+    recs = [{"feature": f, "threshold": t, **mask_confusion(rng.random(100) > 0.3, rng.random(100) > 0.3)}
+            for f in ("vgg19", "daisy") for t in ("adaptive", "fixed")]
+    p2 = plot_mask_quality(recs, tmp_path / "mask.png")
+    for p in (p1, p2):
+        assert iio.imread(p).shape[-1] in (3, 4)
+    with pytest.raises(ValueError):
+        plot_psnr_vs_angle({"x": a}, {"x": a[:3]}, tmp_path / "bad.png")
+
+
+def test_angles_command_on_lego(lego_dir, tmp_path):
+    from senerf.bench.cli import main
+    from senerf.bench.plots import line_view_angles
+    from senerf.bench.results import append_lines
+    from senerf.data import load_scene
+
+    line = {"run_key": "k", "attempt": "a", "status": "ok", "scene": "lego", "protocol": "synthetic-extreme3@100",
+            "method": "senerf", "preset": "fast", "seed": 0, "iterations": 1, "iteration": 1,
+            "views": [0, 1, 51], "test_views": [0, 200, 250, 300], "per_view": {"psnr": [30.0, 15.0, 14.0, 13.0]}}
+    c2w = load_scene(lego_dir, downscale=8).c2w
+    angles, psnr = line_view_angles(line, c2w)
+    assert angles.shape == (4,) and angles[0] == pytest.approx(0.0, abs=1e-6) and np.all(angles[1:] > 0)
+    assert np.all(angles <= 180) and psnr.tolist() == [30.0, 15.0, 14.0, 13.0]
+    append_lines(tmp_path / "r.jsonl", [line])
+    out = tmp_path / "angles.png"
+    assert main(["angles", str(tmp_path / "r.jsonl"), "--scene", str(lego_dir), "--protocol",
+                 "synthetic-extreme3@100", "--out", str(out)]) == 0
+    assert iio.imread(out).ndim == 3

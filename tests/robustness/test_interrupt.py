@@ -1,0 +1,195 @@
+"""Interruption: ``senerf-fit`` killed with SIGKILL mid-training resumes from its last checkpoint.
+
+* A subprocess fit (24x24 scene, 3 views, ``--iterations 0 --steps 700``; the preset checkpoints every 500
+  steps) is killed with SIGKILL as soon as ``checkpoints/iter_0_train.pt`` appears.  Then: every JSON file
+  in the output folder parses, every checkpoint loads (``weights_only``) and holds step 500, and no metrics
+  exist yet.  Rerunning the same command (in-process, ``train_field`` wrapped to read ``resumed_from``)
+  resumes at step 500 and ends with exactly the metrics and weights of an uninterrupted run of the same
+  seed (CPU, one thread: bit-identical, measured).
+* The same with self-training (``--iterations 1 --features daisy``): killed as soon as iteration 0's
+  ``checkpoints/teacher.pt`` appears, the rerun prints ``selftrain: resuming after iteration 0`` and ends
+  with the uninterrupted run's metrics for both iterations (bit-identical, measured).
+* Every file of a fit's output is written through the atomic helpers (temp file, fsync, ``os.replace``):
+  an AST scan of ``senerf/train``, ``senerf/selftrain`` and ``senerf/cli.py`` finds no other write call
+  (the helpers' own behaviour on a failed write is tested in tests/train/test_checkpoint.py).
+"""
+
+from __future__ import annotations
+
+import ast
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import torch
+
+import senerf
+import senerf.train
+from senerf.cli import main
+from senerf.train import load_checkpoint
+
+from .conftest import run_cli_subprocess
+
+PACKAGE = Path(senerf.__file__).resolve().parent
+STEPS = 700  # the preset's checkpoint_every is 500: one checkpoint mid-run, then 200 more steps
+
+
+def _argv(scene: Path, out: Path) -> list[str]:
+    return [str(scene), "--views", "0,1,2", "--out", str(out), "--iterations", "0", "--steps", str(STEPS),
+            "--batch-rays", "64", "--samples", "8", "--resolution", "8", "--no-occupancy", "--quiet"]
+
+
+def _env():
+    return dict(os.environ, OMP_NUM_THREADS="1", MKL_NUM_THREADS="1")
+
+
+def test_sigkill_mid_fit_then_rerun_resumes_and_matches_uninterrupted(scene24, tmp_path, monkeypatch):
+    ref_out, out = tmp_path / "ref", tmp_path / "run"
+    # the uninterrupted reference (one torch thread, like the resumed run below)
+    ref = run_cli_subprocess(_argv(scene24, ref_out), timeout=300)
+    assert ref.returncode == 0, ref.stderr
+    reference = json.loads((ref_out / "metrics.json").read_text())
+
+    ckpt = out / "checkpoints" / "iter_0_train.pt"
+    proc = subprocess.Popen([sys.executable, "-m", "senerf.cli", *_argv(scene24, out)], env=_env(),
+                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    try:
+        deadline = time.monotonic() + 240
+        while not ckpt.exists():
+            assert proc.poll() is None, f"fit ended before its first checkpoint: {proc.stderr.read()!r}"
+            assert time.monotonic() < deadline, "no checkpoint within 240 s"
+            time.sleep(0.005)
+        proc.send_signal(signal.SIGKILL)
+        proc.wait(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+        proc.stderr.close()
+    assert proc.returncode == -signal.SIGKILL
+
+    # what the kill left: parseable JSON, a loadable step-500 checkpoint, no metrics yet
+    for js in out.rglob("*.json"):
+        json.loads(js.read_text())
+    assert not (out / "metrics.json").exists()
+    finished = [p for p in (out / "checkpoints").iterdir() if not p.name.endswith(".tmp")]
+    assert finished == [ckpt]
+    state = load_checkpoint(ckpt)
+    assert state["step"] == 500, "the run finished before the kill; the test did not interrupt it"
+
+    # the same command again, in-process, with train_field wrapped to see where it starts
+    seen = []
+    real = senerf.train.train_field
+
+    def spy(*args, **kwargs):
+        result = real(*args, **kwargs)
+        seen.append(result.resumed_from)
+        return result
+
+    monkeypatch.setattr(senerf.train, "train_field", spy)
+    assert main(_argv(scene24, out)) == 0
+    assert seen == [500]
+    resumed = json.loads((out / "metrics.json").read_text())
+    a, b = reference["iterations"][0], resumed["iterations"][0]
+    for key in ("psnr", "ssim", "per_view"):
+        assert a[key] == b[key], key  # bit-identical on the CPU
+    wa = load_checkpoint(ref_out / "checkpoints" / "iter_0_train.pt")
+    wb = load_checkpoint(ckpt)
+    assert wa["step"] == wb["step"] == STEPS
+    for name, tensor in wa["field"].items():
+        assert torch.equal(tensor, wb["field"][name]), name
+
+
+def _selftrain_argv(scene: Path, out: Path) -> list[str]:
+    return [str(scene), "--views", "0,1,2", "--out", str(out), "--iterations", "1", "--features", "daisy",
+            "--steps", "40", "--batch-rays", "64", "--samples", "8", "--resolution", "8", "--no-occupancy",
+            "--quiet"]
+
+
+def test_sigkill_during_selftraining_resumes_after_the_finished_iteration(scene24, tmp_path, capsys):
+    ref_out, out = tmp_path / "ref", tmp_path / "run"
+    ref = run_cli_subprocess(_selftrain_argv(scene24, ref_out), timeout=300)
+    assert ref.returncode == 0, ref.stderr
+    reference = json.loads((ref_out / "metrics.json").read_text())
+    assert [it["iteration"] for it in reference["iterations"]] == [0, 1]
+
+    teacher = out / "checkpoints" / "teacher.pt"
+    proc = subprocess.Popen([sys.executable, "-m", "senerf.cli", *_selftrain_argv(scene24, out)], env=_env(),
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        deadline = time.monotonic() + 240
+        while not teacher.exists():
+            assert proc.poll() is None, "fit ended before iteration 0 finished"
+            assert time.monotonic() < deadline, "no teacher checkpoint within 240 s"
+            time.sleep(0.005)
+        proc.send_signal(signal.SIGKILL)
+        proc.wait(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    assert proc.returncode == -signal.SIGKILL
+    for js in out.rglob("*.json"):
+        json.loads(js.read_text())
+    assert load_checkpoint(teacher)["iteration"] == 0
+    partial = json.loads((out / "metrics.json").read_text()) if (out / "metrics.json").exists() else None
+    assert partial is None or [it["iteration"] for it in partial["iterations"]] == [0]
+
+    capsys.readouterr()
+    assert main(_selftrain_argv(scene24, out)) == 0
+    assert "selftrain: resuming after iteration 0" in capsys.readouterr().out
+    resumed = json.loads((out / "metrics.json").read_text())
+    assert [it["iteration"] for it in resumed["iterations"]] == [0, 1]
+    for a, b in zip(reference["iterations"], resumed["iterations"]):
+        for key in ("psnr", "ssim", "per_view", "reliable_fraction"):
+            assert a[key] == b[key], (a["iteration"], key)
+
+
+# calls that write files; the atomic helpers are the only places allowed to use them
+_WRITERS = {"write_text", "write_bytes", "imwrite", "savefig", "save", "dump", "write", "open"}
+_ALLOWED = {
+    ("train/checkpoint.py", "write"),       # the temp file inside _atomic_write
+    ("train/checkpoint.py", "save"),        # torch.save into that temp file
+    ("train/evaluate.py", "imwrite"),       # PNG encoded into a BytesIO, then atomic_write_bytes
+}
+
+
+def _writes(path: Path):
+    tree = ast.parse(path.read_text(), filename=str(path))
+    for node in ast.walk(tree):
+        if not isinstance(node, ast.Call):
+            continue
+        f = node.func
+        name = f.attr if isinstance(f, ast.Attribute) else (f.id if isinstance(f, ast.Name) else None)
+        if name not in _WRITERS:
+            continue
+        if name == "open":
+            mode = node.args[1] if len(node.args) > 1 else next((k.value for k in node.keywords if k.arg == "mode"), None)
+            if not (isinstance(mode, ast.Constant) and any(c in str(mode.value) for c in "wax+")):
+                continue
+        if name == "save" and not (isinstance(f, ast.Attribute) and isinstance(f.value, ast.Name)
+                                   and f.value.id in ("torch", "np", "numpy")):
+            continue
+        if name == "dump" and not (isinstance(f, ast.Attribute) and isinstance(f.value, ast.Name)
+                                   and f.value.id in ("json", "pickle")):
+            continue
+        yield name, node.lineno
+
+
+def test_fit_outputs_are_written_only_through_the_atomic_helpers():
+    files = sorted((PACKAGE / "train").rglob("*.py")) + sorted((PACKAGE / "selftrain").rglob("*.py")) + [
+        PACKAGE / "cli.py"]
+    offenders, allowed_seen = [], set()
+    for path in files:
+        rel = str(path.relative_to(PACKAGE))
+        for name, line in _writes(path):
+            if (rel, name) in _ALLOWED:
+                allowed_seen.add((rel, name))
+            else:
+                offenders.append(f"senerf/{rel}:{line}: {name}(...)")
+    assert offenders == [], "write fit outputs with senerf.train.atomic_write_* / save_checkpoint / write_png"
+    assert allowed_seen == _ALLOWED  # the scan does see the helpers' own writes

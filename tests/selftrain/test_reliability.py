@@ -1,0 +1,163 @@
+"""Tests of senerf.selftrain.reliability: warped feature similarity, thresholds, mask quality."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from senerf import geometry
+from senerf.selftrain.reliability import (
+    NO_MATCH,
+    adaptive_threshold,
+    bilinear_sample,
+    cosine_similarity,
+    gt_reliable_mask,
+    mask_quality,
+    resolve_threshold,
+    threshold_weights,
+    view_similarity,
+)
+
+K = geometry.Intrinsics.from_fov(60.0, 40, 32)
+PLANE_Z = 3.0
+
+
+def feature_field(points: np.ndarray) -> np.ndarray:
+    """A deterministic zero-mean feature field over world space: 24 sinusoids (periods ~0.1 - 0.5 units)."""
+    rng = np.random.default_rng(7)
+    freq = rng.normal(size=(24, 3)) * 12.0
+    phase = rng.uniform(0, 2 * np.pi, size=24)
+    return np.sin(points @ freq.T + phase).astype(np.float32)
+
+
+def camera(tx: float, ty: float = 0.0) -> np.ndarray:
+    c2w = np.eye(4)
+    c2w[:3, 3] = (tx, ty, 0.0)
+    return c2w
+
+
+def plane_view(c2w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Features and z-depth of a fronto-parallel plane z = PLANE_Z seen from a camera looking along +z."""
+    z = np.full(K.size, PLANE_Z - c2w[2, 3])
+    pts = geometry.unproject(geometry.pixel_centers(K), z, K, c2w)
+    return feature_field(pts), z
+
+
+def test_bilinear_sample_pixel_centre_convention():
+    img = np.arange(12, dtype=np.float32).reshape(3, 4, 1)
+    uv = np.array([[0.5, 0.5], [3.5, 2.5], [1.0, 0.5], [1.5, 1.0], [-3.0, 0.5]])
+    out = bilinear_sample(img, uv)[:, 0]
+    np.testing.assert_allclose(out, [0.0, 11.0, 0.5, 3.0, 0.0])
+
+
+def test_cosine_similarity_values():
+    a = np.array([[1.0, 0.0], [1.0, 1.0], [0.0, 0.0]])
+    b = np.array([[2.0, 0.0], [-1.0, -1.0], [1.0, 0.0]])
+    np.testing.assert_allclose(cosine_similarity(a, b), [1.0, -1.0, 0.0], atol=1e-6)
+
+
+def test_pseudo_view_equal_to_known_view_is_fully_consistent():
+    feats, z = plane_view(camera(0.0))
+    opacity = np.ones(K.size)
+    res = view_similarity(feats, z, opacity, K, camera(0.0), feats[None], z[None], K, camera(0.0)[None])
+    assert res.valid.all()
+    np.testing.assert_allclose(res.similarity, 1.0, atol=1e-5)
+
+
+def test_true_depth_high_wrong_depth_low_similarity():
+    known = [camera(-0.9), camera(1.0, 0.2)]
+    kf, kz = zip(*(plane_view(c) for c in known))
+    kf, kz, kc = np.stack(kf), np.stack(kz), np.stack(known)
+    pf, pz = plane_view(camera(0.05))
+    opacity = np.ones(K.size)
+    good = view_similarity(pf, pz, opacity, K, camera(0.05), kf, kz, K, kc)
+    seen = good.valid.any(axis=0)
+    assert seen.mean() > 0.9
+    assert np.median(good.similarity[seen]) > 0.98
+    assert np.all(good.similarity[~seen] == NO_MATCH)
+    # a 30 % too large depth puts the points behind the known views' surface: occluded, so they do not count
+    hidden = view_similarity(pf, pz * 1.3, opacity, K, camera(0.05), kf, kz, K, kc)
+    assert not hidden.valid.any() and np.all(hidden.similarity == NO_MATCH)
+    # without occlusion buffers (no surface known), the wrongly lifted points land on unrelated texture
+    bad = view_similarity(pf, pz * 1.3, opacity, K, camera(0.05), kf, np.full_like(kz, np.inf), K, kc)
+    seen_b = bad.valid.any(axis=0)
+    assert seen_b.mean() > 0.5
+    assert np.median(bad.similarity[seen_b]) < np.median(good.similarity[seen]) - 0.3
+
+
+def test_occluded_and_background_pixels():
+    kf, kz = plane_view(camera(0.0))
+    occluded = kz.copy()
+    occluded[:, :20] = 1.0  # an occluder at z = 1 covers the left half of the known view
+    pf, pz = plane_view(camera(0.0))
+    opacity = np.ones(K.size)
+    opacity[0, :] = 0.1
+    res = view_similarity(pf, pz, opacity, K, camera(0.0), kf[None], occluded[None], K, camera(0.0)[None])
+    assert not res.valid[0, :, :19].any()
+    assert res.valid[0, :, 21:].all()
+    assert np.all(res.similarity[:, :19] == NO_MATCH)
+    assert not res.foreground[0].any() and res.foreground[1:].all()
+    # background pixels never become reliable, whatever their similarity
+    w = threshold_weights(res.similarity, res.foreground, "fixed", tau=0.6)
+    assert not w[0].any() and w[1:, 21:].all()
+
+
+def test_adaptive_threshold_is_numpy_quantile():
+    rng = np.random.default_rng(3)
+    s = rng.uniform(-0.2, 1.0, size=1001)
+    for alpha in (0.15, 0.2, 0.25, 0.0, 1.0):
+        assert adaptive_threshold(s, alpha) == pytest.approx(np.quantile(s, 1 - alpha))
+    # NO_MATCH pixels are not part of the scene's similarity distribution
+    with_sentinel = np.concatenate([s, np.full(500, NO_MATCH)])
+    assert resolve_threshold("adaptive", with_sentinel, alpha=0.15) == pytest.approx(np.quantile(s, 0.85))
+    # exactly a fraction alpha of distinct similarities lies strictly above tau
+    tau = adaptive_threshold(s, 0.15)
+    assert abs(np.mean(s > tau) - 0.15) < 2e-3
+    with pytest.raises(ValueError):
+        adaptive_threshold(s, 1.5)
+    with pytest.raises(ValueError):
+        adaptive_threshold(np.array([]), 0.1)
+
+
+def test_fixed_and_unified_weights():
+    s = np.array([[0.59, 0.6, 0.61], [0.7, 0.9, NO_MATCH]])
+    fg = np.array([[True, True, True], [True, False, True]])
+    assert resolve_threshold("fixed", s, tau=0.6) == 0.6
+    assert resolve_threshold("unified", s) is None
+    np.testing.assert_array_equal(threshold_weights(s, fg, "fixed", tau=0.6), [[0, 0, 1], [1, 0, 0]])
+    beta = 16.0
+    u = threshold_weights(s, fg, "unified", beta=beta)
+    expected = np.where(fg, 1 / (1 + np.exp(-beta * (s - 0.7))), 0.0)
+    np.testing.assert_allclose(u, expected, rtol=1e-6)
+    assert u[1, 0] == pytest.approx(0.5)
+    with pytest.raises(ValueError):
+        threshold_weights(s, fg, "adaptive")  # no tau
+    with pytest.raises(ValueError):
+        threshold_weights(s, fg, "topk", tau=0.5)
+
+
+def test_gt_mask_and_mask_quality_by_hand():
+    teacher = np.zeros((1, 2, 3, 3), np.float32)
+    gt = teacher.copy()
+    gt[0, 0, 0] = 0.5      # wrong pixel
+    gt[0, 1, 2] = 0.05     # small error: still right
+    truth = gt_reliable_mask(teacher, gt)
+    np.testing.assert_array_equal(truth, [[[False, True, True], [True, True, True]]])
+    pred = np.array([[[True, True, False], [False, True, True]]])
+    q = mask_quality(pred, truth)
+    # tp = 3, fp = 1, fn = 2, tn = 0
+    assert (q["tp"], q["fp"], q["fn"], q["tn"]) == (3, 1, 2, 0)
+    assert q["precision"] == pytest.approx(0.75)
+    assert q["recall"] == pytest.approx(0.6)
+    assert q["fpr"] == pytest.approx(1.0)
+    region = np.array([[[False, True, True], [True, True, True]]])
+    assert mask_quality(pred, truth, region)["fpr"] != mask_quality(pred, truth, region)["fpr"]  # NaN: no negatives
+
+
+def test_shape_checks():
+    feats, z = plane_view(camera(0.0))
+    with pytest.raises(ValueError):
+        view_similarity(feats, z[:-1], np.ones(K.size), K, camera(0.0), feats[None], z[None], K, camera(0.0)[None])
+    with pytest.raises(ValueError):
+        view_similarity(feats, z, np.ones(K.size), K, camera(0.0), feats[None, ..., :5], z[None], K,
+                        camera(0.0)[None])

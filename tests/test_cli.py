@@ -1,0 +1,100 @@
+"""The senerf-fit command (senerf/cli.py): bad input, a tiny end-to-end fit, resume and overwrite."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import pytest
+
+from senerf.cli import main, parse_views
+from senerf.errors import InputError
+
+SMALL = ["--iterations", "0", "--steps", "24", "--batch-rays", "128", "--samples", "12", "--resolution", "8",
+         "--quiet"]
+TINY = ["--protocol", "all", *SMALL]
+
+
+@pytest.fixture(scope="module")
+def tiny_scene(tmp_path_factory):
+    from senerf.procedural.export import export_blender_scene
+
+    return export_blender_scene(tmp_path_factory.mktemp("scene") / "tiny", n_train=5, n_val=0, n_test=2,
+                                width=16, height=16, seed=0)
+
+
+def _one_error_line(capsys) -> str:
+    err = capsys.readouterr().err
+    lines = err.strip().splitlines()
+    assert len(lines) == 1, err
+    assert lines[0].startswith("senerf-fit: error: ") and "Traceback" not in err
+    return lines[0]
+
+
+def test_parse_views():
+    assert parse_views("0, 1,51") == [0, 1, 51]
+    for bad in ("", "0,,1", "a,b", "1.5"):
+        with pytest.raises(InputError):
+            parse_views(bad)
+
+
+@pytest.mark.parametrize("extra, needle", [
+    (["--views", "a,b"], "--views"),
+    (["--steps", "0"], "--steps"),
+    (["--bogus"], "unrecognized"),
+    (["--views", "0,999"], "out of range"),
+    (["--views", "1,1"], "duplicate"),
+    (["--downscale", "0.5"], "--downscale"),
+    (["--device", "tpu"], "--device"),
+    (["--protocol", "llff", "--views", "0"], "--views"),
+])
+def test_bad_input_exits_2_with_one_line_and_writes_nothing(tiny_scene, tmp_path, capsys, extra, needle):
+    out = tmp_path / "run"
+    assert main([str(tiny_scene), "--out", str(out), *SMALL, *extra]) == 2
+    assert needle in _one_error_line(capsys)
+    assert not out.exists()
+
+
+def test_missing_scene_via_subprocess_has_no_traceback(tmp_path):
+    proc = subprocess.run([sys.executable, "-m", "senerf.cli", str(tmp_path / "nope"), "--out", str(tmp_path / "o")],
+                          capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 2
+    assert proc.stderr.strip().splitlines() == [proc.stderr.strip()]
+    assert proc.stderr.startswith("senerf-fit: error: ") and "not found" in proc.stderr
+    assert not (tmp_path / "o").exists()
+
+
+def test_tiny_end_to_end_fit_resume_and_overwrite(tiny_scene, tmp_path, capsys):
+    out = tmp_path / "run"
+    assert main([str(tiny_scene), "--out", str(out), *TINY]) == 0
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert set(metrics) == {"senerf_version", "command", "config", "scene", "train_views", "test_views",
+                            "resolution", "iterations", "seconds_total"}
+    assert metrics["resolution"] == [16, 16] and len(metrics["train_views"]) == 5 and len(metrics["test_views"]) == 2
+    assert metrics["command"][0] == "senerf-fit" and metrics["config"]["train"]["steps"] == 24
+    (it,) = metrics["iterations"]
+    assert set(it) == {"iteration", "psnr", "ssim", "lpips", "avg", "reliable_fraction", "seconds", "per_view"}
+    assert it["iteration"] == 0 and it["lpips"] == "unavailable" and it["avg"] == "unavailable"
+    assert it["reliable_fraction"] is None and len(it["per_view"]["psnr"]) == 2
+    assert it["psnr"] == pytest.approx(sum(it["per_view"]["psnr"]) / 2)
+    for k in range(2):
+        assert (out / "iter_0" / "test" / f"rgb_{k:03d}.png").is_file()
+        assert (out / "iter_0" / "test" / f"depth_{k:03d}.png").is_file()
+    assert (out / "checkpoints" / "iter_0_train.pt").is_file()
+    capsys.readouterr()
+
+    # the same command resumes its own (finished) run: same result, no retraining
+    assert main([str(tiny_scene), "--out", str(out), *TINY]) == 0
+    again = json.loads((out / "metrics.json").read_text())
+    assert again["iterations"][0]["per_view"] == it["per_view"]
+
+    # a different run is refused, without touching the folder ...
+    capsys.readouterr()
+    before = (out / "metrics.json").read_bytes()
+    assert main([str(tiny_scene), "--out", str(out), *TINY, "--seed", "1"]) == 2
+    assert "different run" in _one_error_line(capsys)
+    assert (out / "metrics.json").read_bytes() == before
+    # ... unless --overwrite
+    assert main([str(tiny_scene), "--out", str(out), *TINY, "--seed", "1", "--overwrite"]) == 0
+    assert json.loads((out / "metrics.json").read_text())["config"]["train"]["seed"] == 1

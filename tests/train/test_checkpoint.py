@@ -1,0 +1,72 @@
+"""Atomic checkpoints and weights_only loading (senerf/train/checkpoint.py)."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import pytest
+import torch
+
+from senerf.errors import InputError
+from senerf.train.checkpoint import atomic_write_text, load_checkpoint, save_checkpoint
+
+
+class _Evil:
+    """Unpickling this calls ``open(marker, 'w')`` - a stand-in for arbitrary code execution."""
+
+    def __init__(self, marker: Path):
+        self.marker = str(marker)
+
+    def __reduce__(self):
+        return (open, (self.marker, "w"))
+
+
+def test_roundtrip_plain_data(tmp_path):
+    state = dict(step=7, w=torch.arange(6.0).view(2, 3), gen=torch.Generator().manual_seed(3).get_state(),
+                 nested=dict(lr=0.5, betas=(0.9, 0.99), name="x", flags=[True, None]))
+    save_checkpoint(tmp_path / "c.pt", state)
+    back = load_checkpoint(tmp_path / "c.pt")
+    assert back["step"] == 7 and torch.equal(back["w"], state["w"]) and torch.equal(back["gen"], state["gen"])
+    assert back["nested"] == state["nested"]
+    assert [p.name for p in tmp_path.iterdir()] == ["c.pt"]  # no temp file left behind
+
+
+def test_failed_write_keeps_the_old_checkpoint(tmp_path, monkeypatch):
+    path = tmp_path / "c.pt"
+    save_checkpoint(path, dict(step=1))
+    before = path.read_bytes()
+
+    def broken_save(obj, fh):
+        fh.write(b"half a checkpoint")
+        raise OSError("disk full")
+
+    monkeypatch.setattr(torch, "save", broken_save)
+    with pytest.raises(OSError, match="disk full"):
+        save_checkpoint(path, dict(step=2))
+    assert path.read_bytes() == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["c.pt"]
+
+
+def test_crafted_pickle_is_refused_without_running_code(tmp_path):
+    marker = tmp_path / "pwned.txt"
+    bad = tmp_path / "bad.pt"
+    torch.save({"step": 1, "payload": _Evil(marker)}, bad)
+    # the payload is live: an unsafe load runs it (so the assertion below can fail)
+    torch.load(bad, weights_only=False)
+    assert marker.exists()
+    marker.unlink()
+    with pytest.raises(InputError, match="refusing to load") as err:
+        load_checkpoint(bad)
+    assert str(bad) in str(err.value) and "\n" not in str(err.value)
+    assert not marker.exists()
+
+
+def test_missing_or_corrupt_checkpoint_is_input_error(tmp_path):
+    with pytest.raises(InputError, match="not found"):
+        load_checkpoint(tmp_path / "none.pt")
+    (tmp_path / "junk.pt").write_bytes(os.urandom(64))
+    with pytest.raises(InputError, match="refusing to load"):
+        load_checkpoint(tmp_path / "junk.pt")
+    atomic_write_text(tmp_path / "t.txt", "hello")
+    assert (tmp_path / "t.txt").read_text() == "hello"

@@ -1,0 +1,123 @@
+"""The training loop (senerf/train/loop.py) and ray source (senerf/train/rays.py) on tiny synthetic rays."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+import torch
+
+from senerf.errors import InputError
+from senerf.train import (ModelConfig, RayBatchSource, TrainConfig, build_field, lr_factor, ray_aabb_bounds,
+                          train_field)
+
+MODEL = ModelConfig(aabb=((-1, -1, -1), (1, 1, 1)), resolution=8, multires=(1,), n_features=4, n_samples=8,
+                    occupancy_resolution=8, train_background="random", eval_background="white")
+
+
+def _rays(n: int = 512, model: ModelConfig = MODEL) -> RayBatchSource:
+    g = torch.Generator().manual_seed(0)
+    o = torch.cat([torch.rand(n, 2, generator=g) * 1.6 - 0.8, torch.full((n, 1), -3.0)], dim=1)
+    d = torch.nn.functional.normalize(torch.tensor([0.0, 0.0, 1.0]) + 0.1 * torch.randn(n, 3, generator=g), dim=-1)
+    rgb = torch.rand(n, 3, generator=g)
+    alpha = (o[:, 0] > 0).float()
+    near, far = ray_aabb_bounds(o, d, model.aabb)
+    return RayBatchSource(o, d, rgb, alpha, near, far, model)
+
+
+def _cfg(**kw) -> TrainConfig:
+    base = dict(steps=12, batch_rays=64, lr=0.02, warmup_steps=3, occupancy_every=3, occupancy_warmup=2,
+                checkpoint_every=5, seed=3)
+    return TrainConfig(**{**base, **kw})
+
+
+def _zero_loss(field, step, generator):
+    return torch.zeros(()), {}
+
+
+class _Crash(Exception):
+    pass
+
+
+def test_ray_aabb_bounds_by_hand():
+    o = torch.tensor([[0.0, 0.0, -3.0], [0.0, 0.0, 0.0], [5.0, 5.0, -3.0]])
+    d = torch.tensor([[0.0, 0.0, 1.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
+    near, far = ray_aabb_bounds(o, d, ((-1, -1, -1), (1, 1, 1)), min_near=1e-3)
+    assert near.tolist() == pytest.approx([2.0, 1e-3, near[2].item()])
+    assert far[:2].tolist() == pytest.approx([4.0, 1.0])
+    assert far[2] == near[2]  # the miss is an empty segment
+
+
+def test_lr_schedule_warmup_then_cosine():
+    cfg = TrainConfig(steps=100, warmup_steps=10, lr_final_factor=0.1)
+    assert lr_factor(0, cfg) == pytest.approx(0.1)
+    assert lr_factor(9, cfg) == pytest.approx(1.0)
+    assert lr_factor(10, cfg) == pytest.approx(1.0)
+    assert lr_factor(55, cfg) == pytest.approx(0.1 + 0.9 * 0.5)
+    assert lr_factor(100, cfg) == pytest.approx(0.1)
+
+
+def test_training_reduces_the_loss():
+    rays = _rays()
+    res = train_field(build_field(MODEL, seed=0), rays, _cfg(steps=40, lr=0.05), progress=False, log_every=5)
+    assert res.history[-1]["loss"] < res.history[0]["loss"]
+    assert res.steps == 40 and res.occupancy is not None
+
+
+def test_resume_reproduces_uninterrupted_run(tmp_path):
+    rays = _rays()
+    cfg = _cfg()
+    full = train_field(build_field(MODEL, seed=1), rays, cfg, extra_loss=_zero_loss,
+                       checkpoint=tmp_path / "a.pt", progress=False)
+
+    def crash_at_8(field, step, generator):
+        if step == 8:
+            raise _Crash()
+        return _zero_loss(field, step, generator)
+
+    with pytest.raises(_Crash):
+        train_field(build_field(MODEL, seed=1), rays, cfg, extra_loss=crash_at_8, checkpoint=tmp_path / "b.pt",
+                    progress=False)
+    assert torch.load(tmp_path / "b.pt", weights_only=True)["step"] == 5
+    fresh = build_field(MODEL, seed=1)
+    resumed = train_field(fresh, rays, cfg, extra_loss=_zero_loss, checkpoint=tmp_path / "b.pt", progress=False)
+    assert resumed.resumed_from == 5
+    a, b = full.field.state_dict(), resumed.field.state_dict()
+    assert a.keys() == b.keys()
+    for k in a:
+        assert torch.equal(a[k], b[k]), k
+    assert torch.equal(full.occupancy.mask, resumed.occupancy.mask)
+    # and the parameters really changed during training (the comparison is not between two inits)
+    init = build_field(MODEL, seed=1).state_dict()
+    assert not torch.equal(init["table"], a["table"])
+
+
+def test_checkpoint_of_another_configuration_is_refused(tmp_path):
+    rays = _rays()
+    train_field(build_field(MODEL, seed=0), rays, _cfg(steps=5), checkpoint=tmp_path / "c.pt", progress=False)
+    with pytest.raises(InputError, match="different training configuration"):
+        train_field(build_field(MODEL, seed=0), rays, _cfg(steps=5, lr=0.03), checkpoint=tmp_path / "c.pt",
+                    progress=False)
+
+
+def test_extra_loss_is_added_and_logged():
+    rays = _rays()
+    calls = []
+
+    def extra(field, step, generator):
+        calls.append(step)
+        return 0.0 * field.regularizer() + 1.0, {"distill": 1.0}
+
+    res = train_field(build_field(MODEL, seed=0), rays, _cfg(steps=6), extra_loss=extra, progress=False,
+                      log_every=3)
+    assert calls == list(range(6))
+    assert res.history[-1]["distill"] == 1.0 and res.history[-1]["loss"] > 1.0
+
+
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA GPU")
+def test_trains_on_cuda():
+    rays = _rays()
+    cuda = RayBatchSource(*(t.cuda() for t in (rays.origins, rays.dirs, rays.rgb, rays.alpha, rays.near,
+                                               rays.far)), MODEL)
+    res = train_field(build_field(MODEL, seed=0), cuda, _cfg(steps=6, device="cuda"), progress=False)
+    assert next(res.field.parameters()).is_cuda and math.isfinite(res.history[-1]["loss"])

@@ -1,0 +1,62 @@
+"""PSNR and SSIM (senerf/train/metrics.py) against hand-computed values and an independent SSIM."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from scipy.ndimage import gaussian_filter
+
+from senerf.train.metrics import mse, psnr, ssim
+
+
+def _ssim_reference(a: np.ndarray, b: np.ndarray) -> float:
+    """Wang et al. SSIM with a Gaussian window (sigma 1.5, truncated at 3.5 sigma: 11x11), population
+    statistics, C1 = (0.01)^2, C2 = (0.03)^2, mean over the valid (uncropped by 5 px) region and channels."""
+    c1, c2 = 0.01**2, 0.03**2
+    vals = []
+    for ch in range(a.shape[-1]):
+        x, y = a[..., ch].astype(np.float64), b[..., ch].astype(np.float64)
+        f = lambda z: gaussian_filter(z, sigma=1.5, truncate=3.5)  # noqa: E731
+        mx, my = f(x), f(y)
+        vx, vy, cxy = f(x * x) - mx * mx, f(y * y) - my * my, f(x * y) - mx * my
+        s = ((2 * mx * my + c1) * (2 * cxy + c2)) / ((mx**2 + my**2 + c1) * (vx + vy + c2))
+        vals.append(s[5:-5, 5:-5].mean())
+    return float(np.mean(vals))
+
+
+def test_psnr_golden_values():
+    a = np.zeros((8, 8, 3), np.float32)
+    assert psnr(a, a + 0.1) == pytest.approx(20.0, abs=1e-5)  # MSE 0.01 -> 10 log10(100)
+    b = a.copy()
+    b[:4] = 0.2  # half the pixels off by 0.2: MSE 0.02
+    assert mse(a, b) == pytest.approx(0.02, rel=1e-6)
+    assert psnr(a, b) == pytest.approx(10 * math.log10(50.0), abs=1e-5)
+    assert psnr(a, a) == math.inf
+
+
+def test_ssim_identical_is_one_and_constant_images_by_hand():
+    rng = np.random.default_rng(0)
+    img = rng.random((20, 24, 3)).astype(np.float32)
+    assert ssim(img, img) == pytest.approx(1.0, abs=1e-12)
+    # constant images: variances/covariance are 0, SSIM = (2 a b + C1) / (a^2 + b^2 + C1)
+    a, b = np.full((16, 16, 3), 0.5), np.full((16, 16, 3), 0.25)
+    c1 = 1e-4
+    assert ssim(a, b) == pytest.approx((2 * 0.5 * 0.25 + c1) / (0.25 + 0.0625 + c1), abs=1e-9)
+
+
+def test_ssim_matches_independent_gaussian_implementation():
+    rng = np.random.default_rng(1)
+    a = rng.random((40, 33, 3))
+    b = np.clip(a + rng.normal(0, 0.1, a.shape), 0, 1)
+    ours = ssim(a, b)
+    assert 0.3 < ours < 0.99
+    assert ours == pytest.approx(_ssim_reference(a, b), abs=1e-6)
+
+
+def test_ssim_rejects_mismatched_or_tiny_images():
+    with pytest.raises(ValueError):
+        ssim(np.zeros((8, 8, 3)), np.zeros((8, 9, 3)))
+    with pytest.raises(ValueError):
+        ssim(np.zeros((5, 5, 3)), np.zeros((5, 5, 3)))
