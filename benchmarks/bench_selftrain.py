@@ -20,6 +20,7 @@ Results are printed and written to ``OUT/bench_<mode>.json``.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import os
 import sys
@@ -116,14 +117,15 @@ def bench_e2e(args) -> dict:
     scene, train_idx, test_idx, model, tcfg = _load(args)
     out = Path(args.out)
     cfg = SelfTrainConfig(iterations=args.iterations, features=args.features, threshold=args.threshold,
-                          n_pseudo_per_input=args.n_pseudo, seed=args.seed)
+                          n_pseudo_per_input=args.n_pseudo, seed=args.seed, batch_reliable=args.batch_reliable,
+                          batch_prior=args.batch_prior)
     t0 = time.perf_counter()
     metrics = run_selftraining(scene, train_idx, test_idx, model, tcfg, cfg, out / "selftrain",
                                command=sys.argv, progress=False)
     t_run = time.perf_counter() - t0
     psnrs = [it["psnr"] for it in metrics["iterations"]]
     print("self-training PSNR per iteration:", " ".join(f"{p:.2f}" for p in psnrs), f"({t_run:.0f} s)")
-    long_cfg = tcfg.__class__(**{**tcfg.__dict__, "steps": tcfg.steps * (args.iterations + 1)})
+    long_cfg = dataclasses.replace(tcfg, steps=tcfg.steps * (args.iterations + 1))
     t1 = time.perf_counter()
     rays = RayBatchSource.from_scene(scene, train_idx, model, tcfg.device)
     res = train_field(build_field(model, seed=tcfg.seed, steps=long_cfg.steps), rays, long_cfg,
@@ -134,6 +136,7 @@ def bench_e2e(args) -> dict:
     print(f"final - iteration 0: {psnrs[-1] - psnrs[0]:+.2f} dB; "
           f"final - long baseline: {psnrs[-1] - ev['psnr']:+.2f} dB")
     return dict(mode="e2e", steps=tcfg.steps, batch_rays=tcfg.batch_rays, iterations=args.iterations,
+                batch_reliable=args.batch_reliable, batch_prior=args.batch_prior,
                 psnr_per_iteration=psnrs,
                 reliable_fraction=[it["reliable_fraction"] for it in metrics["iterations"]],
                 run_seconds=t_run, long_baseline_steps=long_cfg.steps, long_baseline_psnr=ev["psnr"],
@@ -153,6 +156,8 @@ def main(argv=None) -> int:
     p.add_argument("--max-error", type=float, default=0.1, help="masks: GT-reliable if mean |dRGB| below")
     p.add_argument("--iterations", type=int, default=3)
     p.add_argument("--n-pseudo", type=int, default=8, help="e2e: pseudo views per input view")
+    p.add_argument("--batch-reliable", type=int, default=512, help="e2e: reliable pseudo rays per step")
+    p.add_argument("--batch-prior", type=int, default=128, help="e2e: prior pseudo rays per step")
     p.add_argument("--features", default="vgg19")
     p.add_argument("--threshold", default="adaptive")
     p.add_argument("--seed", type=int, default=0)

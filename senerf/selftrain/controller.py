@@ -71,7 +71,7 @@ class SelfTrainConfig:
         occlusion_rel_tol: relative depth slack of the occlusion test.
         batch_reliable, batch_prior, lambda_color, lambda_geometry, lambda_prior, geometry_target,
         density_distill, prior, kernel_size, kernel_std, skip_empty: see :class:`DistillConfig`.
-        seed: seeds pseudo-view sampling and student initialisation.
+        seed: seeds pseudo-view sampling (fields are initialised from ``TrainConfig.seed``).
     """
 
     iterations: int = 3
@@ -87,8 +87,8 @@ class SelfTrainConfig:
     beta: float = 16.0
     opacity_threshold: float = 0.5
     occlusion_rel_tol: float = 0.05
-    batch_reliable: int = 1024
-    batch_prior: int = 256
+    batch_reliable: int = 512
+    batch_prior: int = 128
     lambda_color: float = 1.0
     lambda_geometry: float = 1.0
     lambda_prior: float = 0.005
@@ -314,7 +314,7 @@ def _load_teacher(path: Path, model, cfg_train, fingerprint: str, device):
         raise InputError("output folder holds a run with different settings; use --overwrite or another --out",
                          file=path)
     iteration = int(state["iteration"])
-    field = build_field(model, seed=cfg_train.seed + iteration, steps=cfg_train.steps).to(device)
+    field = build_field(model, seed=cfg_train.seed, steps=cfg_train.steps).to(device)
     field.load_state_dict(state["field"])
     if hasattr(field, "set_progress"):
         field.set_progress(cfg_train.steps)
@@ -381,7 +381,10 @@ def run_selftraining(scene, train_idx, test_idx, model, train_cfg, cfg: SelfTrai
         t_it = time.perf_counter()
         reliable_fraction = None
         tcfg = train_cfg if k == 0 else student_cfg
-        field = build_field(model, seed=tcfg.seed + k, steps=tcfg.steps)
+        # a fresh field (not a copy of the teacher) from the same initialisation seed in every iteration:
+        # on 3 views the initialisation alone moved test PSNR by 1 dB (lego Extreme, 200 steps, seeds 0
+        # and 1), so this keeps iteration-to-iteration differences about distillation
+        field = build_field(model, seed=tcfg.seed, steps=tcfg.steps)
         extra = None
         if k > 0:
             if extractor is None:

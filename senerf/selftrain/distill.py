@@ -56,7 +56,8 @@ class DistillConfig:
     """Settings of the distillation losses.
 
     Attributes:
-        batch_reliable: reliable pseudo rays per step.
+        batch_reliable: reliable pseudo rays per step (foreground rays: most of their samples fall in
+            occupied cells, so a pseudo ray costs more than an average real ray).
         batch_prior: unreliable (prior) pseudo rays per step.
         lambda_color, lambda_geometry, lambda_prior: loss weights (paper: 1.0, 1.0, 0.005).
         geometry_target: 'weights' (per-bin rendering weights, default) or 'log_density'.
@@ -69,8 +70,8 @@ class DistillConfig:
             down inside the teacher's empty cells (the real rays' photometric loss still does).
     """
 
-    batch_reliable: int = 1024
-    batch_prior: int = 256
+    batch_reliable: int = 512
+    batch_prior: int = 128
     lambda_color: float = 1.0
     lambda_geometry: float = 1.0
     lambda_prior: float = 0.005

@@ -1,7 +1,7 @@
 """Interruption: ``senerf-fit`` killed with SIGKILL mid-training resumes from its last checkpoint.
 
 * A subprocess fit (24x24 scene, 3 views, ``--iterations 0 --steps 700``; the preset checkpoints every 500
-  steps) is killed with SIGKILL as soon as ``checkpoints/iter_0_train.pt`` appears.  Then: every JSON file
+  steps, read from ``preset_train_config``) is killed with SIGKILL as soon as ``checkpoints/iter_0_train.pt`` appears.  Then: every JSON file
   in the output folder parses, every checkpoint loads (``weights_only``) and holds step 500, and no metrics
   exist yet.  Rerunning the same command (in-process, ``train_field`` wrapped to read ``resumed_from``)
   resumes at step 500 and ends with exactly the metrics and weights of an uninterrupted run of the same
@@ -30,12 +30,13 @@ import torch
 import senerf
 import senerf.train
 from senerf.cli import main
-from senerf.train import load_checkpoint
+from senerf.train import load_checkpoint, preset_train_config
 
 from .conftest import run_cli_subprocess
 
 PACKAGE = Path(senerf.__file__).resolve().parent
-STEPS = 700  # the preset's checkpoint_every is 500: one checkpoint mid-run, then 200 more steps
+CKPT_EVERY = preset_train_config("balanced").checkpoint_every  # senerf-fit's default preset (500)
+STEPS = CKPT_EVERY + 200  # one checkpoint mid-run, then 200 more steps
 
 
 def _argv(scene: Path, out: Path) -> list[str]:
@@ -79,7 +80,7 @@ def test_sigkill_mid_fit_then_rerun_resumes_and_matches_uninterrupted(scene24, t
     finished = [p for p in (out / "checkpoints").iterdir() if not p.name.endswith(".tmp")]
     assert finished == [ckpt]
     state = load_checkpoint(ckpt)
-    assert state["step"] == 500, "the run finished before the kill; the test did not interrupt it"
+    assert state["step"] == CKPT_EVERY, "the run finished before the kill; the test did not interrupt it"
 
     # the same command again, in-process, with train_field wrapped to see where it starts
     seen = []
@@ -92,7 +93,7 @@ def test_sigkill_mid_fit_then_rerun_resumes_and_matches_uninterrupted(scene24, t
 
     monkeypatch.setattr(senerf.train, "train_field", spy)
     assert main(_argv(scene24, out)) == 0
-    assert seen == [500]
+    assert seen == [CKPT_EVERY]
     resumed = json.loads((out / "metrics.json").read_text())
     a, b = reference["iterations"][0], resumed["iterations"][0]
     for key in ("psnr", "ssim", "per_view"):
