@@ -4,7 +4,7 @@ Builds the small procedural scene of :func:`senerf.procedural.make_demo_scene` (
 data needed), fits it from 3 views on one side with the ``fast`` preset (baseline teacher, then SE-NeRF
 self-training), and prints both test PSNRs and where the outputs are.
 
-The scene is written once to ``OUT/scene`` (built in a temporary folder beside it, then renamed, so an
+The scene is written once to ``OUT/demo_scene`` (built in a temporary folder beside it, then renamed, so an
 interrupted build leaves nothing half-written); rerunning the same command reuses it and resumes the
 fit.  ``OUT`` defaults to ``runs/demo``.
 """
@@ -57,7 +57,7 @@ def run_demo(args) -> int:
     from senerf.procedural import DEMO_FEWSHOT_VIEWS
 
     out = Path(args.out) if args.out is not None else Path("runs") / "demo"
-    scene_dir = ensure_demo_scene(out / "scene", seed=args.seed)
+    scene_dir = ensure_demo_scene(out / "demo_scene", seed=args.seed)
     fit_out = out / "fit"
     argv = [str(scene_dir), "--views", ",".join(map(str, DEMO_FEWSHOT_VIEWS)), "--preset", DEMO_PRESET,
             "--iterations", str(demo_iterations()), "--seed", str(args.seed), "--device", args.device,

@@ -7,6 +7,10 @@ from pathlib import Path
 
 import pytest
 
+# torch's OpenMP workers spin while waiting; on a shared 2-core machine that makes small ops 10-100x
+# slower (measured: a plane-TV step 2.9 s -> 0.03 s). senerf-fit sets the same default for itself.
+os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+
 REPO_ROOT = Path(__file__).resolve().parents[1]
 
 
