@@ -23,6 +23,7 @@ import shutil
 import sys
 import time
 import traceback
+import warnings
 from pathlib import Path
 
 from senerf import __version__
@@ -277,6 +278,12 @@ def _run(args, argv) -> int:
     return 0
 
 
+def _one_line_warning(message, category, filename, lineno, file=None, line=None) -> None:
+    """Print a warning (e.g. a skipped frame) as one ``senerf-fit: warning:`` line, without source lines."""
+    text = " ".join(str(message).split())
+    print(f"{PROG}: warning: {text}", file=sys.stderr if file is None else file)
+
+
 def main(argv: list[str] | None = None) -> int:
     """Entry point of ``senerf-fit``; returns the exit status (0 ok, 2 bad input, 1 internal error)."""
     argv = list(sys.argv[1:] if argv is None else argv)
@@ -285,8 +292,10 @@ def main(argv: list[str] | None = None) -> int:
     # Only effective before torch is first imported; an explicit setting by the user wins.
     os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
     try:
-        args = build_parser().parse_args(argv)
-        return _run(args, [PROG, *argv])
+        with warnings.catch_warnings():  # restores warnings.showwarning on exit
+            warnings.showwarning = _one_line_warning
+            args = build_parser().parse_args(argv)
+            return _run(args, [PROG, *argv])
     except InputError as exc:
         print(f"{PROG}: error: {exc}", file=sys.stderr)
         return 2

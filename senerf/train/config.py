@@ -281,8 +281,8 @@ def choose_model(scene, train_idx, overrides: Mapping[str, Any] | None = None,
         chosen.update(ndc=False, aabb=tuple(map(tuple, box)), near=None, far=None,
                       occupancy_resolution=64)
         half = (box[1, 0] - box[0, 0]) / 2
-        why["aabb"] = (f"cube centre ({centre[0]:.2f}, {centre[1]:.2f}, {centre[2]:.2f}) half size {half:.2f} "
-                       f"(camera distance {dist:.2f} x tan(fov/2) x 1.05)")
+        why["aabb"] = (f"cube centre ({centre[0]:.4g}, {centre[1]:.4g}, {centre[2]:.4g}) half size {half:.4g} "
+                       f"(camera distance {dist:.4g} x tan(fov/2) x 1.05)")
         why["near"] = "per-ray near/far from the ray-box intersection"
         why["occupancy_resolution"] = "64^3 occupancy grid skips empty space"
         if 2 * half < 1.0:  # density is per world unit: a box s < 1 unit wide starts 1/s times denser
