@@ -221,10 +221,10 @@ def load_ngp(root: Path, downscale: float = 1.0) -> Scene:
                     split_idx[split].append(k)
         else:
             split_idx["train"].append(k)
+    if not entries:
+        raise InputError("no frame has an existing image", file=file, field="frames")
     if missing:
         warnings.warn(f"{file}: skipped {len(missing)} frame(s) whose image is missing: {', '.join(missing)}",
                       stacklevel=2)
-    if not entries:
-        raise InputError("no frame has an existing image", file=file, field="frames")
     splits = {s: np.asarray(v, np.int64) for s, v in split_idx.items()}
     return _build(root, entries, downscale, splits)
