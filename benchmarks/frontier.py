@@ -1,8 +1,8 @@
 """Frontier run: lego, NeRF Synthetic Extreme (3 views) at 100x100, every preset, baseline and SE-NeRF.
 
 Fits through the harness (:mod:`senerf.bench`), one ``senerf-fit`` process per run, resumable: rerunning
-skips finished runs.  Writes ``OUT/results.jsonl``, ``OUT/frontier.md`` (table with mean ± std over seeds,
-the paper's numbers and the command) and ``OUT/frontier.png`` (PSNR vs seconds and vs peak memory).
+skips finished runs.  Writes ``OUT/results.jsonl``, ``OUT/frontier.md`` (tables with mean ± std over seeds,
+the paper's numbers, commit, machine and the command) and ``OUT/frontier.png`` (PSNR vs seconds and vs peak memory).
 
     python benchmarks/frontier.py --dry-run                   # list the fits
     python benchmarks/frontier.py --seeds 0 1 2 --out benchmarks/out/frontier
@@ -80,9 +80,7 @@ def main(argv: list[str] | None = None) -> int:
     if not aggs:
         print("frontier: no finished fits to tabulate", file=sys.stderr)
         return 1
-    table = format_table(final_iterations(aggs), markdown=True)
-    (out / "frontier.md").write_text(
-        make_report(records, command, title=f"Frontier: {scene.name} {PROTOCOL}") + "\n\n" + table + "\n")
+    (out / "frontier.md").write_text(make_report(records, command, title=f"Frontier: {scene.name} {PROTOCOL}") + "\n")
     plot_frontier(aggs, out / "frontier.png", f"{scene.name} {PROTOCOL}: PSNR vs cost per preset")
     print(format_table(final_iterations(aggs)))
     print(f"wrote {out / 'frontier.md'} and {out / 'frontier.png'}")

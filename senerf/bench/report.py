@@ -116,9 +116,9 @@ def _protocol_block(protocol: str, lines: list[dict], aggs: list[Aggregate]) -> 
     selftrain = [a for a in aggs if a.iterations > 0]
     if selftrain:
         out += ["", "Per self-training iteration (0 = teacher):", "",
-                "| scene | method | preset | iter | PSNR | SSIM | seconds (cumulative) |", "|" + "---|" * 7]
-        out += [f"| {a.scene} | {a.method} | {a.preset} | {a.iteration} | {a.psnr.text(2)} | {a.ssim.text(3)} "
-                f"| {a.seconds.text(0)} |" for a in selftrain]
+                "| scene | method | preset | K | iter | PSNR | SSIM | seconds (cumulative) |", "|" + "---|" * 8]
+        out += [f"| {a.scene} | {a.method} | {a.preset} | {a.iterations} | {a.iteration} | {a.psnr.text(2)} | "
+                f"{a.ssim.text(3)} | {a.seconds.text(0)} |" for a in selftrain]
     published = paper_rows(proto.family)
     if published:
         out += ["", "Published figures for this protocol:", ""]
