@@ -52,7 +52,11 @@ def ensure_demo_scene(scene_dir: Path, seed: int = 0) -> Path:
 
 
 def run_demo(args) -> int:
-    """Run the demo for parsed ``senerf-fit`` arguments (uses ``--out``, ``--seed``, ``--device``, ``--quiet``)."""
+    """Run the demo for parsed ``senerf-fit`` arguments.
+
+    Uses ``--out``, ``--seed``, ``--device``, ``--quiet``, ``--overwrite``, and ``--steps`` /
+    ``--batch-rays`` when given (they override the preset); everything else is the demo's own.
+    """
     from senerf.cli import main
     from senerf.procedural import DEMO_FEWSHOT_VIEWS
 
@@ -62,6 +66,9 @@ def run_demo(args) -> int:
     argv = [str(scene_dir), "--views", ",".join(map(str, DEMO_FEWSHOT_VIEWS)), "--preset", DEMO_PRESET,
             "--iterations", str(demo_iterations()), "--seed", str(args.seed), "--device", args.device,
             "--out", str(fit_out)]
+    for flag, value in (("--steps", args.steps), ("--batch-rays", args.batch_rays)):
+        if value is not None:  # explicit overrides of the preset (e.g. a quick smoke run)
+            argv += [flag, str(value)]
     if args.overwrite:
         argv.append("--overwrite")
     if args.quiet:

@@ -1,0 +1,33 @@
+"""``senerf-fit --demo`` wiring: scene built once, both PSNRs and the output folder printed, resumable.
+
+The full demo (fast preset) is timed in BENCHMARKS.md; here it runs with a few steps so it stays quick.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+
+from senerf.cli import main
+from senerf.procedural import DEMO_FEWSHOT_VIEWS
+
+
+def test_demo_runs_baseline_and_senerf_and_prints_both(tmp_path, capsys):
+    out = tmp_path / "demo"
+    argv = ["--demo", "--out", str(out), "--steps", "30", "--batch-rays", "256", "--quiet"]
+    assert main(argv) == 0
+    text = capsys.readouterr().out
+    assert re.search(r"baseline \(iteration 0\) test PSNR \d+\.\d+ dB; SE-NeRF \(iteration \d+\) test PSNR", text)
+    assert str((out / "fit").resolve()) in text
+    metrics = json.loads((out / "fit" / "metrics.json").read_text())
+    assert metrics["train_views"] == list(DEMO_FEWSHOT_VIEWS)
+    iterations = [it["iteration"] for it in metrics["iterations"]]
+    assert iterations[0] == 0 and len(iterations) >= 2  # the baseline teacher and at least one student
+    assert (out / "demo_scene" / "transforms_train.json").is_file()
+    assert not [p for p in out.iterdir() if p.name.startswith(".scene-")]  # no half-built scene left
+
+    # the same command again reuses the scene and resumes the finished run
+    scene_mtime = (out / "demo_scene" / "transforms_train.json").stat().st_mtime_ns
+    assert main(argv) == 0
+    assert (out / "demo_scene" / "transforms_train.json").stat().st_mtime_ns == scene_mtime
+    assert json.loads((out / "fit" / "metrics.json").read_text())["iterations"] == metrics["iterations"]
