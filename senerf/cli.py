@@ -94,8 +94,9 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--preset", choices=("fast", "balanced", "quality"), default="balanced")
     t.add_argument("--steps", type=_positive_int("--steps"), help="training steps per iteration (overrides preset)")
     t.add_argument("--batch-rays", type=_positive_int("--batch-rays"), help="rays per step (overrides preset)")
-    t.add_argument("--iterations", type=_positive_int("--iterations", allow_zero=True), default=3,
-                   help="self-training iterations after the baseline (0 = baseline only)")
+    t.add_argument("--iterations", type=_positive_int("--iterations", allow_zero=True), default=None,
+                   help="self-training iterations after the baseline (0 = baseline only; default: the "
+                        "preset's, 3 for balanced and quality, 1 for fast)")
     t.add_argument("--device", default="cpu", help="cpu or cuda")
     t.add_argument("--seed", type=_positive_int("--seed", allow_zero=True), default=0)
     m = p.add_argument_group("model overrides (default: chosen from the scene and printed)")
@@ -241,12 +242,13 @@ def _run(args, argv) -> int:
 
     selftrain = None
     st_cfg = None
-    if args.iterations > 0:
+    iterations = args.iterations if args.iterations is not None else int(PRESETS[args.preset]["iterations"])
+    if iterations > 0:
         selftrain, why = _selftrain_available()
         if selftrain is None:
             print(f"{PROG}: self-training is not available ({why}); running the baseline only", file=sys.stderr)
         else:
-            st_cfg = selftrain[0](iterations=args.iterations, features=args.features, threshold=args.threshold,
+            st_cfg = selftrain[0](iterations=iterations, features=args.features, threshold=args.threshold,
                                   density_distill=not args.no_density_distill, prior=not args.no_prior,
                                   seed=args.seed)
 

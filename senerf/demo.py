@@ -26,7 +26,7 @@ def demo_iterations() -> int:
     """Self-training iterations of the demo: those of the ``fast`` preset."""
     from senerf.train import PRESETS
 
-    return int(PRESETS[DEMO_PRESET].get("iterations", 1))
+    return int(PRESETS[DEMO_PRESET]["iterations"])
 
 
 def ensure_demo_scene(scene_dir: Path, seed: int = 0) -> Path:

@@ -10,6 +10,7 @@ import re
 
 from senerf.cli import main
 from senerf.procedural import DEMO_FEWSHOT_VIEWS
+from senerf.train import PRESETS
 
 
 def test_demo_runs_baseline_and_senerf_and_prints_both(tmp_path, capsys):
@@ -22,7 +23,8 @@ def test_demo_runs_baseline_and_senerf_and_prints_both(tmp_path, capsys):
     metrics = json.loads((out / "fit" / "metrics.json").read_text())
     assert metrics["train_views"] == list(DEMO_FEWSHOT_VIEWS)
     iterations = [it["iteration"] for it in metrics["iterations"]]
-    assert iterations[0] == 0 and len(iterations) >= 2  # the baseline teacher and at least one student
+    # the baseline teacher, then the fast preset's self-training iterations (--iterations not given)
+    assert iterations == list(range(1 + PRESETS["fast"]["iterations"]))
     assert (out / "demo_scene" / "transforms_train.json").is_file()
     assert not [p for p in out.iterdir() if p.name.startswith(".scene-")]  # no half-built scene left
 
