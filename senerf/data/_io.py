@@ -30,7 +30,6 @@ __all__ = [
     "read_json",
     "get_field",
     "as_positive",
-    "as_finite",
     "as_pose",
     "check_rigid",
     "resolve_inside",
@@ -73,7 +72,7 @@ def get_field(obj: dict, key: str, file: Path, field: str):
 
 
 def as_positive(value, file: Path, field: str) -> float:
-    """A positive finite float (focal lengths, sizes, angles); ``InputError`` otherwise."""
+    """A positive finite float (focal lengths, principal points, sizes, angles); ``InputError`` otherwise."""
     if isinstance(value, bool):
         raise InputError(f"expected a number, got {value!r}", file=file, field=field)
     try:
@@ -82,19 +81,6 @@ def as_positive(value, file: Path, field: str) -> float:
         raise InputError(f"expected a number, got {value!r}", file=file, field=field) from None
     if not math.isfinite(v) or v <= 0.0:
         raise InputError(f"must be positive and finite, got {value!r}", file=file, field=field)
-    return v
-
-
-def as_finite(value, file: Path, field: str) -> float:
-    """A finite float (principal point); ``InputError`` otherwise."""
-    if isinstance(value, bool):
-        raise InputError(f"expected a number, got {value!r}", file=file, field=field)
-    try:
-        v = float(value)
-    except (TypeError, ValueError):
-        raise InputError(f"expected a number, got {value!r}", file=file, field=field) from None
-    if not math.isfinite(v):
-        raise InputError(f"must be finite, got {value!r}", file=file, field=field)
     return v
 
 

@@ -61,6 +61,16 @@ def _frames(meta: dict, file: Path, allow_empty: bool) -> list:
     return frames
 
 
+def _frame_entry(root: Path, meta: dict, frame: dict, i: int, file: Path) -> dict:
+    """One validated frame ``frames[i]`` of ``file``: image path, camera fields and OpenGL ``c2w_gl (4, 4)``."""
+    prefix = f"frames[{i}]"
+    path = _image_path(root, frame, file, f"{prefix}.file_path")
+    c2w = _io.as_pose(_io.get_field(frame, "transform_matrix", file, f"{prefix}.transform_matrix"),
+                      file, f"{prefix}.transform_matrix")
+    params = _camera_params(meta, frame, file, prefix)
+    return dict(path=path, field=f"{prefix}.file_path", file=file, params=params, c2w_gl=c2w)
+
+
 def _camera_params(meta: dict, frame: dict, file: Path, prefix: str) -> dict:
     """Validated numeric camera fields of one frame (frame value overrides the file-level one)."""
     out = {}
@@ -71,10 +81,9 @@ def _camera_params(meta: dict, frame: dict, file: Path, prefix: str) -> dict:
             src, field = meta[key], key
         else:
             continue
-        if key in ("cx", "cy"):
-            out[key] = (_io.as_finite(src, file, field), field)
-        else:
-            out[key] = (_io.as_positive(src, file, field), field)
+        # every field is positive, cx/cy included: senerf.geometry.Intrinsics refuses a principal point
+        # on or beyond the image's top/left edge, and the user must hear it with file and field
+        out[key] = (_io.as_positive(src, file, field), field)
         if key.startswith("camera_angle") and not out[key][0] < math.pi:
             raise InputError(f"field of view must be below pi radians, got {src!r}", file=file, field=field)
     if "fl_x" not in out and "camera_angle_x" not in out:
@@ -159,14 +168,10 @@ def load_blender(root: Path, downscale: float = 1.0) -> Scene:
         frames = _frames(meta, file, allow_empty=split != "train")
         start = len(entries)
         for i, fr in enumerate(frames):
-            prefix = f"frames[{i}]"
-            path = _image_path(root, fr, file, f"{prefix}.file_path")
-            c2w = _io.as_pose(_io.get_field(fr, "transform_matrix", file, f"{prefix}.transform_matrix"),
-                              file, f"{prefix}.transform_matrix")
-            params = _camera_params(meta, fr, file, prefix)
-            if not path.is_file():
-                raise InputError(f"image not found: {path}", file=file, field=f"{prefix}.file_path")
-            entries.append(dict(path=path, field=f"{prefix}.file_path", file=file, params=params, c2w_gl=c2w))
+            entry = _frame_entry(root, meta, fr, i, file)
+            if not entry["path"].is_file():
+                raise InputError(f"image not found: {entry['path']}", file=file, field=entry["field"])
+            entries.append(entry)
         splits[split] = np.arange(start, len(entries), dtype=np.int64)
     return _build(root, entries, downscale, splits)
 
@@ -203,19 +208,15 @@ def load_ngp(root: Path, downscale: float = 1.0) -> Scene:
             split_lists[split] = {_norm_rel(x) for x in names}
     entries, missing, split_idx = [], [], {s: [] for s in BLENDER_SPLITS}
     for i, fr in enumerate(frames):
-        prefix = f"frames[{i}]"
-        path = _image_path(root, fr, file, f"{prefix}.file_path")
-        c2w = _io.as_pose(_io.get_field(fr, "transform_matrix", file, f"{prefix}.transform_matrix"),
-                          file, f"{prefix}.transform_matrix")
-        params = _camera_params(meta, fr, file, prefix)
-        if not path.is_file():
-            missing.append(f"{prefix} ({fr['file_path']})")
+        entry = _frame_entry(root, meta, fr, i, file)
+        if not entry["path"].is_file():
+            missing.append(f"frames[{i}] ({fr['file_path']})")
             continue
         k = len(entries)
-        entries.append(dict(path=path, field=f"{prefix}.file_path", file=file, params=params, c2w_gl=c2w))
+        entries.append(entry)
         if split_lists:
             rel = _norm_rel(fr["file_path"])
-            rel_png = _norm_rel(os.path.relpath(path, root))
+            rel_png = _norm_rel(os.path.relpath(entry["path"], root))
             for split, names in split_lists.items():
                 if rel in names or rel_png in names:
                     split_idx[split].append(k)

@@ -26,6 +26,8 @@ ray-building functions (``render_views``, ``camera_rays``); this module does no 
 
 from __future__ import annotations
 
+import dataclasses
+
 import hashlib
 import json
 import math
@@ -122,13 +124,8 @@ class SelfTrainConfig:
             raise InputError(str(exc), field="distillation") from None
 
     def distill_config(self) -> DistillConfig:
-        """The :class:`DistillConfig` part of this configuration."""
-        return DistillConfig(batch_reliable=self.batch_reliable, batch_prior=self.batch_prior,
-                             lambda_color=self.lambda_color, lambda_geometry=self.lambda_geometry,
-                             lambda_prior=self.lambda_prior, geometry_target=self.geometry_target,
-                             density_distill=self.density_distill, prior=self.prior,
-                             kernel_size=self.kernel_size, kernel_std=self.kernel_std,
-                             skip_empty=self.skip_empty)
+        """The :class:`DistillConfig` part of this configuration (its fields, taken by name)."""
+        return DistillConfig(**{f.name: getattr(self, f.name) for f in dataclasses.fields(DistillConfig)})
 
     def alpha(self, iteration: int) -> float:
         """Adaptive-threshold alpha of iteration ``iteration >= 1`` (capped at 1)."""

@@ -7,7 +7,7 @@ line naming the file and the field (no traceback), and every file of the existin
 bytes and mtime.  Three of the cases are repeated through a subprocess (a fresh interpreter) to show that
 nothing on stderr but that one line appears.
 
-Cases tried: 58.  Refused (exit 2): the 48 input cases of ``BAD_CASES`` (3 of them also by subprocess)
+Cases tried: 60.  Refused (exit 2): the 50 input cases of ``BAD_CASES`` (3 of them also by subprocess)
 and 2 output folders (one holding a different run, one not a senerf-fit folder at all).  Accepted and
 fitted: grayscale PNG, 16-bit PNG (colour and grey), an RGB frame in an RGBA scene, an RGBA frame in an RGB
 scene, an all-RGB scene, an instant-ngp scene with one missing image (skipped with a warning), the same
@@ -227,6 +227,8 @@ BAD_CASES = [
     ("views-option-like", _nothing, ["--views", "-1,2"], ["--views"]),
     ("views-not-integers", _nothing, ["--views", "0,one"], ["--views"]),
     ("ngp-zero-focal", _ngp(fl_x=0.0), V, ["transforms.json", "fl_x", "positive"]),
+    ("ngp-zero-principal-point", _ngp(extra={"cx": 0.0}), V, ["transforms.json", "cx", "positive"]),
+    ("ngp-negative-principal-point", _ngp(extra={"cy": -3.0}), V, ["transforms.json", "cy", "positive"]),
     ("ngp-negative-focal", _ngp(fl_x=-20.0), V, ["transforms.json", "fl_x", "positive"]),
     ("ngp-declared-width-wrong", _ngp(extra={"w": 32, "h": 24}), V, ["transforms.json", "w", "declared"]),
     ("ngp-every-image-missing", _ngp(missing=[f"train/r_{k}.png" for k in range(6)] + ["test/r_0.png", "test/r_1.png"]),
@@ -403,3 +405,8 @@ def test_ngp_frame_without_image_is_skipped_with_a_warning(scene_copy, tmp_path,
     assert re.search(r"skipped 1 frame\(s\) whose image is missing: frames\[4\]", warning_lines[0])
     # 7 of the 8 frames remain; --views index all remaining images, the rest are test views
     assert metrics["train_views"] == [0, 1, 2] and metrics["test_views"] == [3, 4, 5, 6]
+
+
+def test_docstring_counts_match_the_table():
+    assert f"the {len(BAD_CASES)} input cases" in __doc__
+    assert f"Cases tried: {len(BAD_CASES) + 2 + 8}." in __doc__
