@@ -1,7 +1,7 @@
 """Training throughput of KPlanesField: compiled fused kernel vs pure-PyTorch gather vs grid_sample reference.
 
 Run: ``python benchmarks/bench_fields.py [--rays R] [--samples-per-ray S] [--iters K] [--threads T]
-[--config default|paper] [--uniform]``
+[--config fit|default|paper] [--uniform]``
 
 Backends: ``auto`` (the compiled fused kernel), ``gather`` (pure PyTorch embedding_bag / index_add_),
 ``grid_sample`` (the field's reference path: same optimised MLPs, grid_sample interpolation) and ``plain``
@@ -32,6 +32,10 @@ from senerf.fields.ckernel import kernel_status
 from senerf.fields.interp import PAIRS
 
 CONFIGS = {
+    # what `senerf-fit` builds for lego at 100x100 (choose_model: base 56, scales (1, 2), 16 features;
+    # checked by tests/fields/test_bench_configs.py), i.e. the field every lego benchmark trains
+    "fit": dict(resolution=56, n_features=16, multires=(1, 2)),
+    # KPlanesField's constructor defaults (three scales)
     "default": dict(resolution=64, n_features=16, multires=(1, 2, 4)),
     "paper": dict(resolution=128, n_features=32, multires=(1, 2, 4)),
 }
@@ -128,7 +132,7 @@ def main(argv=None) -> int:
           f"median of {args.iters} round-robin steps")
     flops = [matmul_flops()]
     aabb = torch.tensor([[-1.3] * 3, [1.3] * 3])
-    for name in args.config or ["default"]:
+    for name in args.config or ["fit", "default"]:
         cfg = CONFIGS[name]
         gen = torch.Generator().manual_seed(0)
         if args.uniform:

@@ -134,3 +134,30 @@ void kp_backward(const REAL *u, const REAL *table, int64_t n0, int64_t n1, int64
         }
     }
 }
+
+/* Real spherical harmonics of degree 4 (16 coefficients, tiny-cuda-nn's convention and signs; the same
+ * formulas as senerf.fields.encoding.sh_encoding_reference) of unit directions dirs (N, 3) for points
+ * [n0, n1), written to out (N, 16) row-major. */
+void kp_sh4(const REAL *dirs, int64_t n0, int64_t n1, REAL *out) {
+    for (int64_t n = n0; n < n1; ++n) {
+        const REAL x = dirs[3 * n], y = dirs[3 * n + 1], z = dirs[3 * n + 2];
+        const REAL x2 = x * x, y2 = y * y, z2 = z * z;
+        REAL *o = out + 16 * n;
+        o[0] = (REAL)0.28209479177387814;
+        o[1] = (REAL)-0.48860251190291987 * y;
+        o[2] = (REAL)0.48860251190291987 * z;
+        o[3] = (REAL)-0.48860251190291987 * x;
+        o[4] = (REAL)1.0925484305920792 * x * y;
+        o[5] = (REAL)-1.0925484305920792 * y * z;
+        o[6] = (REAL)0.94617469575755997 * z2 - (REAL)0.31539156525251999;
+        o[7] = (REAL)-1.0925484305920792 * x * z;
+        o[8] = (REAL)0.54627421529603959 * (x2 - y2);
+        o[9] = (REAL)0.59004358992664352 * y * ((REAL)-3.0 * x2 + y2);
+        o[10] = (REAL)2.8906114426405538 * x * y * z;
+        o[11] = (REAL)0.45704579946446572 * y * ((REAL)1.0 - (REAL)5.0 * z2);
+        o[12] = (REAL)0.3731763325901154 * z * ((REAL)5.0 * z2 - (REAL)3.0);
+        o[13] = (REAL)0.45704579946446572 * x * ((REAL)1.0 - (REAL)5.0 * z2);
+        o[14] = (REAL)1.4453057213202769 * z * (x2 - y2);
+        o[15] = (REAL)0.59004358992664352 * x * (-x2 + (REAL)3.0 * y2);
+    }
+}

@@ -24,7 +24,7 @@ from pathlib import Path
 
 import torch
 
-__all__ = ["load_kernel", "kernel_status", "fused_plane_features", "MAX_FEATURES", "MAX_SCALES"]
+__all__ = ["load_kernel", "kernel_status", "fused_plane_features", "fused_sh4", "MAX_FEATURES", "MAX_SCALES"]
 
 MAX_FEATURES = 256
 MAX_SCALES = 8
@@ -97,6 +97,8 @@ def load_kernel(dtype: torch.dtype, n_features: int = 16):
         fn = getattr(lib, name)
         fn.argtypes = [ptr, ptr, i64, i64, i64, ptr, ptr] + extra
         fn.restype = None
+    lib.kp_sh4.argtypes = [ptr, i64, i64, ptr]
+    lib.kp_sh4.restype = None
     if lib.kp_nf() != n_features:  # pragma: no cover - stale cache entry
         return None
     _STATUS["status"] = "loaded"
@@ -179,3 +181,24 @@ def fused_plane_features(table: torch.Tensor, u: torch.Tensor, resolutions: tupl
     res = torch.tensor(resolutions, dtype=torch.int64)
     offs = torch.tensor(offsets, dtype=torch.int64)
     return _Fused.apply(table, u, res, offs, lib)
+
+
+def fused_sh4(dirs: torch.Tensor):
+    """Degree-4 real spherical harmonics by the compiled kernel, or ``None`` when it cannot be used.
+
+    Args:
+        dirs: ``(N, 3)`` unit directions, CPU float32/float64, no gradient.
+    Returns:
+        ``(N, 16)`` equal to :func:`senerf.fields.encoding.sh_encoding_reference` (to rounding), or ``None``
+        (CUDA, other dtype, ``dirs`` needs a gradient, or no compiler).
+    """
+    if dirs.device.type != "cpu" or dirs.requires_grad or dirs.dtype not in (torch.float32, torch.float64):
+        return None
+    lib = load_kernel(dirs.dtype, 16)
+    if lib is None:
+        return None
+    dirs = dirs.contiguous()
+    out = dirs.new_empty(dirs.shape[0], 16)
+    _run([functools.partial(lib.kp_sh4, dirs.data_ptr(), a, b, out.data_ptr())
+          for a, b in _split(dirs.shape[0], torch.get_num_threads())])
+    return out

@@ -7,7 +7,7 @@ import math
 
 import torch
 
-__all__ = ["sh_encoding", "sh_dim", "positional_encoding", "anneal_weights"]
+__all__ = ["sh_encoding", "sh_encoding_reference", "sh_dim", "positional_encoding", "anneal_weights"]
 
 
 def sh_dim(degree: int) -> int:
@@ -18,7 +18,27 @@ def sh_dim(degree: int) -> int:
 
 
 def sh_encoding(dirs: torch.Tensor, degree: int = 4) -> torch.Tensor:
-    """Real spherical harmonics ``Y_lm`` for ``l < degree`` (tiny-cuda-nn's convention and signs).
+    """Real spherical harmonics ``Y_lm`` for ``l < degree``: :func:`sh_encoding_reference`'s values, by the
+    compiled kernel of :mod:`senerf.fields.ckernel` for degree 4 on the CPU when ``dirs`` needs no gradient
+    (about 10x faster than the column-wise PyTorch expression), else by the reference.
+
+    Args:
+        dirs: ``(N, 3)`` unit directions.
+        degree: 1..4; ``degree ** 2`` outputs.
+    Returns:
+        ``(N, degree ** 2)``.
+    """
+    if degree == 4 and dirs.ndim == 2 and dirs.shape[1] == 3:
+        from .ckernel import fused_sh4
+
+        out = fused_sh4(dirs)
+        if out is not None:
+            return out
+    return sh_encoding_reference(dirs, degree)
+
+
+def sh_encoding_reference(dirs: torch.Tensor, degree: int = 4) -> torch.Tensor:
+    """Real spherical harmonics ``Y_lm`` for ``l < degree`` (tiny-cuda-nn's convention and signs), in PyTorch.
 
     Orthonormal on the unit sphere: ``integral Y_i Y_j dOmega = delta_ij``.
 
