@@ -43,8 +43,9 @@ BACKENDS = ("auto", "gather", "grid_sample", "plain")
 
 
 class PlainKPlanes(torch.nn.Module):
-    """The straightforward reference: K-Planes as usually written (one ``(1, F, r, r)`` parameter per plane,
-    ``grid_sample(align_corners=True)`` per plane, Hadamard product, ``nn.Sequential`` MLPs, no chunking).
+    """The straightforward reference: K-Planes as usually written in pure PyTorch (one ``(1, F, r, r)``
+    parameter per plane, ``grid_sample(align_corners=True)`` per plane, Hadamard product, ``nn.Sequential``
+    MLPs, no chunking, the SH encoding as a PyTorch expression: ``sh_encoding_reference``).
     Same architecture, sizes and initial values as :class:`KPlanesField` built with the same arguments."""
 
     def __init__(self, field: KPlanesField):
@@ -62,8 +63,8 @@ class PlainKPlanes(torch.nn.Module):
         self.n_scales = len(field.resolutions)
 
     def forward(self, xyz, dirs):
-        from senerf.fields import sh_encoding
         from senerf.fields.base import trunc_exp
+        from senerf.fields.encoding import sh_encoding_reference as sh_encoding
         u = (xyz - self.aabb[0]) * (2.0 / (self.aabb[1] - self.aabb[0])) - 1.0
         inside = (u.abs() <= 1).all(-1).float()
         feats = []

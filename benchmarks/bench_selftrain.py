@@ -5,8 +5,8 @@ to the known views) as pseudo views with ground truth, and report precision / re
 of our reliable masks against masks from ground-truth colour (``mean |C_T - C_gt| < --max-error``), per
 feature extractor and threshold kind (paper: precision 98.03 %, recall 92.25 %).
 
-``e2e``: the whole self-training run (``--iterations``, default 3) and a baseline trained for the run's
-whole step budget (``(iterations + 1) x steps``); reports test PSNR per iteration, gains and wall time
+``e2e``: the whole self-training run (``--iterations``, default 3) and a baseline given the run's whole
+wall-clock budget (``steps x run seconds / iteration-0 seconds`` steps); reports test PSNR per iteration, gains and wall time
 (target: final >= iteration 0 + 1.5 dB and >= long baseline + 1.0 dB, whole run <= 15 min on 2 cores).
 
 Usage::
@@ -34,6 +34,13 @@ REPO = Path(__file__).resolve().parents[1]
 DATA = Path(os.environ.get("SENERF_DATA", REPO.parent / "shared" / "data"))
 
 
+def fewshot_test_views(scene) -> np.ndarray:
+    """The Extreme protocol's test views (never used as pseudo views)."""
+    from senerf.data import fewshot_split
+
+    return fewshot_split(scene, "extreme")[1]
+
+
 def _load(args):
     from senerf.data import fewshot_split, load_scene
     from senerf.train import choose_model, preset_train_config
@@ -47,18 +54,15 @@ def _load(args):
     return scene, train_idx, test_idx, model, tcfg
 
 
-def _nearest_held_out(scene, train_idx, n: int) -> np.ndarray:
-    """Held-out train-split views whose camera direction is closest (in angle) to a known view's."""
+def _nearest_held_out(scene, train_idx, test_idx, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """The ``n`` held-out views (neither known nor test) nearest in angle to a known view, and their angles
+    (degrees): the oracle's choice (:func:`senerf.selftrain.dataset_pseudo_views`)."""
     from senerf import geometry
+    from senerf.selftrain import dataset_pseudo_views
 
-    known = np.asarray(scene.c2w[train_idx])
-    centre = geometry.closest_point_to_axes(known)
-    cand = np.setdiff1d(scene.splits["train"], train_idx)
-    dirs = lambda c: (c[:, :3, 3] - centre) / np.linalg.norm(c[:, :3, 3] - centre, axis=1, keepdims=True)  # noqa
-    cos = dirs(np.asarray(scene.c2w[cand])) @ dirs(known).T
-    angle = np.degrees(np.arccos(np.clip(cos.max(axis=1), -1, 1)))
-    order = np.argsort(angle)[:n]
-    return cand[order], angle[order]
+    idx = dataset_pseudo_views(scene, train_idx, test_idx, 180.0, n)
+    c2w = np.asarray(scene.c2w, dtype=np.float64)
+    return idx, geometry.nearest_view_angles(c2w[train_idx], c2w[idx], center=None)
 
 
 def bench_masks(args) -> dict:
@@ -75,7 +79,7 @@ def bench_masks(args) -> dict:
     teacher, occ = res.field, res.occupancy
     t_train = time.perf_counter() - t0
     ev = evaluate(teacher, scene, test_idx, None, model, occupancy=occ, progress=False)
-    eval_idx, angles = _nearest_held_out(scene, train_idx, args.n_eval)
+    eval_idx, angles = _nearest_held_out(scene, train_idx, fewshot_test_views(scene), args.n_eval)
     t_r = time.perf_counter()
     renders = (render_views(teacher, model, scene.intrinsics, scene.c2w[train_idx], occupancy=occ),
                render_views(teacher, model, scene.intrinsics, scene.c2w[eval_idx], occupancy=occ))
@@ -104,6 +108,12 @@ def bench_masks(args) -> dict:
                   f"precision {100 * q['precision']:.2f} % recall {100 * q['recall']:.2f} % "
                   f"FPR {100 * q['fpr']:.2f} %  predicted-reliable {100 * q['predicted_reliable_rate']:.1f} % "
                   f"(GT-reliable rate {100 * q['gt_reliable_rate']:.1f} %)")
+    from senerf.bench.plots import plot_mask_quality
+
+    png = plot_mask_quality([dict(r, feature=r["features"]) for r in rows], out / "mask_quality.png",
+                            f"lego Extreme @100: reliable masks vs ground-truth colour masks "
+                            f"({len(eval_idx)} held-out poses, teacher {ev['psnr']:.1f} dB)")
+    print(f"wrote {png}")
     return dict(mode="masks", steps=tcfg.steps, batch_rays=tcfg.batch_rays, teacher_psnr=ev["psnr"],
                 teacher_seconds=t_train,
                 eval_views=[int(i) for i in eval_idx], eval_angles_deg=[float(a) for a in angles],
@@ -125,7 +135,9 @@ def bench_e2e(args) -> dict:
     t_run = time.perf_counter() - t0
     psnrs = [it["psnr"] for it in metrics["iterations"]]
     print("self-training PSNR per iteration:", " ".join(f"{p:.2f}" for p in psnrs), f"({t_run:.0f} s)")
-    long_cfg = dataclasses.replace(tcfg, steps=tcfg.steps * (args.iterations + 1))
+    # the baseline gets the whole run's wall time: steps scaled by (run seconds / iteration-0 seconds)
+    t_iter0 = metrics["iterations"][0]["seconds"]
+    long_cfg = dataclasses.replace(tcfg, steps=int(round(tcfg.steps * t_run / t_iter0)))
     t1 = time.perf_counter()
     rays = RayBatchSource.from_scene(scene, train_idx, model, tcfg.device)
     res = train_field(build_field(model, seed=tcfg.seed, steps=long_cfg.steps), rays, long_cfg,

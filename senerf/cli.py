@@ -112,6 +112,12 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--threshold", choices=("adaptive", "fixed", "unified"), default="adaptive")
     s.add_argument("--no-density-distill", action="store_true")
     s.add_argument("--no-prior", action="store_true")
+    s.add_argument("--empty-opacity", type=_float("--empty-opacity", 0.0), default=None,
+                   help="pseudo pixels the teacher renders with opacity below this are distilled as empty "
+                        "space (0: off, the paper's letter; default: SelfTrainConfig.empty_opacity)")
+    s.add_argument("--reliability", choices=("features", "oracle"), default="features",
+                   help="oracle: an analysis, not the method: held-out dataset views as pseudo views, reliable "
+                        "where the teacher's colour matches the real image (the paper's Figure 1)")
     o = p.add_argument_group("output")
     o.add_argument("--out", type=Path, help="output folder (default runs/<scene>-<protocol>)")
     o.add_argument("--overwrite", action="store_true", help="replace a different run in --out")
@@ -250,7 +256,8 @@ def _run(args, argv) -> int:
         else:
             st_cfg = selftrain[0](iterations=iterations, features=args.features, threshold=args.threshold,
                                   density_distill=not args.no_density_distill, prior=not args.no_prior,
-                                  seed=args.seed)
+                                  reliability=args.reliability, seed=args.seed,
+                                  **({} if args.empty_opacity is None else {"empty_opacity": args.empty_opacity}))
 
     out = args.out if args.out is not None else Path("runs") / f"{scene.name}-{protocol}"
     config = dict(scene_dir=str(scene_dir.resolve()), format=fmt, downscale=downscale, protocol=protocol,
@@ -262,7 +269,8 @@ def _run(args, argv) -> int:
     identity = {k: v for k, v in config.items() if k != "selftrain"}
     identity["train"] = {k: v for k, v in identity["train"].items() if k != "device"}
     identity["selftrain_flags"] = dict(features=args.features, threshold=args.threshold,
-                                       density_distill=not args.no_density_distill, prior=not args.no_prior)
+                                       density_distill=not args.no_density_distill, prior=not args.no_prior,
+                                       reliability=args.reliability, empty_opacity=args.empty_opacity)
     _prepare_out(out, identity, args.overwrite)
     print(f"{PROG}: writing to {out}")
 

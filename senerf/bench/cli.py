@@ -19,6 +19,7 @@ import argparse
 import os
 import shlex
 import sys
+import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -36,6 +37,10 @@ from .specs import PRESETS, expand_specs
 from .summary import aggregate, final_iterations, format_table, preset_label
 
 __all__ = ["main", "build_parser"]
+
+
+REPORT_BEGIN = "<!-- senerf-bench report: BEGIN (generated, do not edit by hand) -->"
+REPORT_END = "<!-- senerf-bench report: END -->"
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -75,6 +80,9 @@ def build_parser() -> argparse.ArgumentParser:
     rep.add_argument("results")
     rep.add_argument("--out", default=None, help="write here (default: stdout)")
     rep.add_argument("--title", default="Benchmarks")
+    rep.add_argument("--into", default=None,
+                     help="replace the text between the report markers of this markdown file (e.g. "
+                          f"BENCHMARKS.md: '{REPORT_BEGIN}' ... '{REPORT_END}'), atomically")
 
     plot = sub.add_parser("plot", help="PNG plots: frontier (PSNR vs seconds / memory) and per iteration")
     plot.add_argument("results")
@@ -166,6 +174,10 @@ def _cmd_summarize(args: argparse.Namespace) -> int:
 
 def _cmd_report(args: argparse.Namespace, argv: list[str]) -> int:
     text = make_report(_load(args.results), ["senerf-bench", *argv], title=args.title)
+    if args.into:
+        path = Path(args.into)
+        atomic_replace_text(path, splice_report(_read_text(path), text, path))
+        print(f"updated the generated section of {path}")
     if args.out:
         Path(args.out).parent.mkdir(parents=True, exist_ok=True)
         Path(args.out).write_text(text + "\n")
@@ -173,6 +185,40 @@ def _cmd_report(args: argparse.Namespace, argv: list[str]) -> int:
     else:
         print(text)
     return 0
+
+
+def _read_text(path: Path) -> str:
+    try:
+        return path.read_text()
+    except OSError as exc:
+        raise InputError(f"cannot read ({exc.strerror or exc})", file=path) from None
+
+
+def splice_report(document: str, report: str, path: Path | str = "document") -> str:
+    """``document`` with the text between :data:`REPORT_BEGIN` and :data:`REPORT_END` replaced by ``report``.
+
+    Raises:
+        InputError: the markers are missing, repeated or out of order.
+    """
+    b, e = document.count(REPORT_BEGIN), document.count(REPORT_END)
+    i, j = document.find(REPORT_BEGIN), document.find(REPORT_END)
+    if b != 1 or e != 1 or j < i:
+        raise InputError(f"needs exactly one '{REPORT_BEGIN}' line followed by one '{REPORT_END}' line",
+                         file=path, field="report markers")
+    head = document[:i + len(REPORT_BEGIN)]
+    return head + "\n" + report.rstrip("\n") + "\n" + document[j:]
+
+
+def atomic_replace_text(path: Path, text: str) -> None:
+    """Write ``text`` to ``path`` through a temporary file in the same folder and ``os.replace``."""
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent or ".")
+    try:
+        with os.fdopen(fd, "w") as fh:
+            fh.write(text)
+        os.replace(tmp, path)
+    finally:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
 
 
 def _cmd_plot(args: argparse.Namespace) -> int:

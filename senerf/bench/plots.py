@@ -20,6 +20,8 @@ import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
+from senerf.geometry import nearest_view_angles  # re-exported: the bench's angle plots use it
+
 from .summary import Aggregate
 
 __all__ = ["plot_frontier", "plot_iterations", "nearest_view_angles", "line_view_angles", "plot_psnr_vs_angle",
@@ -111,36 +113,6 @@ def plot_iterations(aggs: list[Aggregate], path: str | Path, title: str = "") ->
     ax_p.legend(fontsize=7)
     fig.suptitle(title or "quality per self-training iteration")
     return _save(fig, path)
-
-
-def nearest_view_angles(train_c2w: np.ndarray, test_c2w: np.ndarray,
-                        center: np.ndarray | tuple | None = (0.0, 0.0, 0.0)) -> np.ndarray:
-    """Angle in degrees between each test camera and its nearest training camera.
-
-    Args:
-        train_c2w: (m, 4, 4) or (m, 3, 4) camera-to-world poses of the training views.
-        test_c2w: (n, 4, 4) or (n, 3, 4) poses of the test views.
-        center: (3,) point the cameras orbit (the origin for NeRF Synthetic): the angle between the
-            directions from ``center`` to the camera centres.  ``None``: the angle between the optical axes
-            (camera z, OpenCV), the meaningful choice for forward-facing (LLFF) captures.
-
-    Returns:
-        (n,) float64 degrees in [0, 180].
-    """
-    train_c2w, test_c2w = np.asarray(train_c2w, np.float64), np.asarray(test_c2w, np.float64)
-    for name, a in (("train_c2w", train_c2w), ("test_c2w", test_c2w)):
-        if a.ndim != 3 or a.shape[1:] not in ((4, 4), (3, 4)) or a.shape[0] == 0:
-            raise ValueError(f"{name} must be (k, 4, 4) or (k, 3, 4) with k >= 1, got {a.shape}")
-    if center is None:
-        d_tr, d_te = train_c2w[:, :3, 2].copy(), test_c2w[:, :3, 2].copy()
-    else:
-        c = np.asarray(center, np.float64).reshape(3)
-        d_tr, d_te = train_c2w[:, :3, 3] - c, test_c2w[:, :3, 3] - c
-    d_tr /= np.linalg.norm(d_tr, axis=-1, keepdims=True)
-    d_te /= np.linalg.norm(d_te, axis=-1, keepdims=True)
-    dot = d_te @ d_tr.T                                                        # (n, m)
-    cross = np.linalg.norm(np.cross(d_te[:, None, :], d_tr[None, :, :]), axis=-1)  # (n, m)
-    return np.degrees(np.arctan2(cross, dot).min(axis=1))                      # precise near 0 and 180
 
 
 def line_view_angles(line: dict, c2w: np.ndarray, center: np.ndarray | tuple | None = (0.0, 0.0, 0.0)

@@ -22,6 +22,7 @@ from .poses import (
 from .projection import project, projection_matrix, unproject
 from .rays import pixel_centers, pixel_rays, rays_from_pixels
 from .spherical import (
+    nearest_view_angles,
     closest_point_to_axes,
     pose_from_spherical,
     sample_pseudo_views,
@@ -42,6 +43,7 @@ __all__ = [
     "pose_from_spherical",
     "spherical_from_pose",
     "spherical_basis",
+    "nearest_view_angles",
     "closest_point_to_axes",
     "sample_pseudo_views",
     "pixel_centers",

@@ -23,6 +23,7 @@ __all__ = [
     "closest_point_to_axes",
     "sample_pseudo_views",
     "spherical_basis",
+    "nearest_view_angles",
 ]
 
 #: Largest |elevation| (degrees) that :func:`sample_pseudo_views` produces.
@@ -239,3 +240,33 @@ def sample_pseudo_views(input_c2w, max_offset_deg, n, rng, center=None, up=None)
     el = lo + t_el * (hi - lo)
     c2w = pose_from_spherical(az0[src] + d_az, el, r0[src], center=c, up=u)
     return c2w.astype(arr.dtype, copy=False).reshape(n, 4, 4), src
+
+
+def nearest_view_angles(train_c2w: np.ndarray, test_c2w: np.ndarray,
+                        center: np.ndarray | tuple | None = (0.0, 0.0, 0.0)) -> np.ndarray:
+    """Angle in degrees between each test camera and its nearest training camera.
+
+    Args:
+        train_c2w: (m, 4, 4) or (m, 3, 4) camera-to-world poses of the training views.
+        test_c2w: (n, 4, 4) or (n, 3, 4) poses of the test views.
+        center: (3,) point the cameras orbit (the origin for NeRF Synthetic): the angle between the
+            directions from ``center`` to the camera centres.  ``None``: the angle between the optical axes
+            (camera z, OpenCV), the meaningful choice for forward-facing (LLFF) captures.
+
+    Returns:
+        (n,) float64 degrees in [0, 180].
+    """
+    train_c2w, test_c2w = np.asarray(train_c2w, np.float64), np.asarray(test_c2w, np.float64)
+    for name, a in (("train_c2w", train_c2w), ("test_c2w", test_c2w)):
+        if a.ndim != 3 or a.shape[1:] not in ((4, 4), (3, 4)) or a.shape[0] == 0:
+            raise ValueError(f"{name} must be (k, 4, 4) or (k, 3, 4) with k >= 1, got {a.shape}")
+    if center is None:
+        d_tr, d_te = train_c2w[:, :3, 2].copy(), test_c2w[:, :3, 2].copy()
+    else:
+        c = np.asarray(center, np.float64).reshape(3)
+        d_tr, d_te = train_c2w[:, :3, 3] - c, test_c2w[:, :3, 3] - c
+    d_tr /= np.linalg.norm(d_tr, axis=-1, keepdims=True)
+    d_te /= np.linalg.norm(d_te, axis=-1, keepdims=True)
+    dot = d_te @ d_tr.T                                                        # (n, m)
+    cross = np.linalg.norm(np.cross(d_te[:, None, :], d_tr[None, :, :]), axis=-1)  # (n, m)
+    return np.degrees(np.arctan2(cross, dot).min(axis=1))                      # precise near 0 and 180

@@ -12,7 +12,8 @@ Public API (see DESIGN.md):
   :func:`reliability_mask_quality` (masks vs ground-truth colour at held-out poses).
 """
 
-from .controller import (PseudoLabels, SelfTrainConfig, estimate_reliability, known_images, reliability_mask_quality,
+from .controller import (RELIABILITY_KINDS, PseudoLabels, SelfTrainConfig, dataset_pseudo_views, estimate_reliability,
+                         known_images, oracle_reliability, reliability_mask_quality,
                          run_selftraining)
 from .distill import (DistillationLoss, DistillConfig, PseudoRays, bins_with_fractions, gaussian_kernel,
                       gaussian_prior, neighbour_offsets, prior_weights, unified_prior_weights)
@@ -27,5 +28,5 @@ __all__ = [
     "DistillConfig", "gaussian_kernel", "neighbour_offsets", "prior_weights", "unified_prior_weights",
     "gaussian_prior", "bins_with_fractions", "PseudoRays", "DistillationLoss",
     "SelfTrainConfig", "PseudoLabels", "run_selftraining", "estimate_reliability", "known_images",
-    "reliability_mask_quality",
+    "reliability_mask_quality", "dataset_pseudo_views", "oracle_reliability", "RELIABILITY_KINDS",
 ]

@@ -49,9 +49,10 @@ from .reliability import (THRESHOLD_KINDS, gt_reliable_mask, mask_quality, resol
                           view_similarity)
 
 __all__ = ["SelfTrainConfig", "PseudoLabels", "run_selftraining", "estimate_reliability", "known_images",
-           "reliability_mask_quality"]
+           "reliability_mask_quality", "oracle_reliability", "dataset_pseudo_views", "RELIABILITY_KINDS"]
 
 _CKPT_FORMAT = "senerf-selftrain-1"
+RELIABILITY_KINDS = ("features", "oracle")
 
 
 @dataclass(frozen=True)
@@ -74,6 +75,15 @@ class SelfTrainConfig:
         batch_reliable, batch_prior, lambda_color, lambda_geometry, lambda_prior, geometry_target,
         density_distill, prior, kernel_size, kernel_std, skip_empty: see :class:`DistillConfig`.
         seed: seeds pseudo-view sampling (fields are initialised from ``TrainConfig.seed``).
+        reliability: 'features' (the method: feature consistency across views) or 'oracle' (the paper's
+            Figure 1 toy experiment, an analysis that needs ground truth: pseudo views are held-out dataset
+            poses, see :func:`dataset_pseudo_views`, and a pixel is reliable where the teacher's colour is
+            within ``oracle_max_error`` (mean absolute RGB) of the real image, background included).
+        oracle_max_error: the oracle's colour tolerance.
+        empty_opacity: pseudo pixels the teacher renders with opacity below this are reliable *empty* rays
+            (colour = background, density distilled to the teacher's near-zero weights); 0 switches it off.
+            The paper's reliability is defined for surface pixels only and says nothing of background
+            pixels; this is our addition, measured in BENCHMARKS.md (ablation ``senerf-no-empty``).
     """
 
     iterations: int = 3
@@ -101,8 +111,18 @@ class SelfTrainConfig:
     kernel_std: float = 1.0
     skip_empty: bool = True
     seed: int = 0
+    reliability: str = "features"
+    oracle_max_error: float = 0.1
+    empty_opacity: float = 0.0
 
     def __post_init__(self) -> None:
+        if self.reliability not in RELIABILITY_KINDS:
+            raise InputError(f"must be one of {', '.join(RELIABILITY_KINDS)}, got {self.reliability!r}",
+                             field="reliability")
+        if not 0 <= self.empty_opacity <= 1:
+            raise InputError(f"must be in [0, 1], got {self.empty_opacity!r}", field="empty_opacity")
+        if not 0 < self.oracle_max_error <= 1:
+            raise InputError(f"must be in (0, 1], got {self.oracle_max_error!r}", field="oracle_max_error")
         if not isinstance(self.iterations, int) or self.iterations < 0:
             raise InputError(f"must be an integer >= 0, got {self.iterations!r}", field="iterations")
         if not isinstance(self.n_pseudo_per_input, int) or self.n_pseudo_per_input < 1:
@@ -218,6 +238,8 @@ def estimate_reliability(teacher, occupancy, model, scene, train_idx, pseudo_c2w
         sims[i], fg[i] = res.similarity, res.foreground
     tau = resolve_threshold(cfg.threshold, sims[fg], alpha=alpha, tau=cfg.fixed_tau)
     weights = threshold_weights(sims, fg, cfg.threshold, tau=tau, beta=cfg.beta)
+    if cfg.empty_opacity > 0:
+        weights = np.where(pseudo["acc"] < cfg.empty_opacity, np.float32(1.0), weights).astype(np.float32)
     if cfg.threshold == "unified":
         neighbour, has = unified_prior_weights(sims, fg, cfg.kernel_size, cfg.kernel_std)
         prior = np.where(fg & has, 1.0 - weights, 0.0).astype(np.float32)
@@ -259,6 +281,54 @@ def reliability_mask_quality(teacher, occupancy, model, scene, train_idx, eval_i
     quality["gt_reliable_rate"] = float(truth[fg].mean()) if fg.any() else float("nan")
     quality["predicted_reliable_rate"] = float(predicted[fg].mean()) if fg.any() else float("nan")
     return quality, labels
+
+
+def dataset_pseudo_views(scene, train_idx, exclude_idx, max_angle_deg: float, count: int) -> np.ndarray:
+    """Held-out dataset views to use as pseudo views (the oracle needs their real images).
+
+    Candidates are the scene's views outside ``train_idx`` and ``exclude_idx`` (the test views); each gets
+    the angle between its optical axis and the nearest known view's (``geometry.nearest_view_angles``).  The ``count`` nearest within
+    ``max_angle_deg`` are returned; when fewer than ``count // 2`` lie within it, the nearest ``count // 2``
+    (at least 1) are taken regardless, so that an iteration always has pseudo views.
+
+    Args:
+        scene: the :class:`senerf.data.Scene`; train_idx (m,), exclude_idx (k,): indices into it.
+        max_angle_deg: the iteration's pseudo-view range.
+        count: the most views to return.
+    Returns:
+        (P,) int64 scene indices, nearest first.
+    """
+    train_idx = np.asarray(train_idx, dtype=np.int64).reshape(-1)
+    taken = np.union1d(train_idx, np.asarray(exclude_idx, dtype=np.int64).reshape(-1))
+    cand = np.setdiff1d(np.arange(scene.c2w.shape[0]), taken)
+    if cand.size == 0:
+        raise InputError("the oracle needs held-out views (not training, not test) with images", field="views")
+    c2w = np.asarray(scene.c2w, dtype=np.float64)
+    angle = geometry.nearest_view_angles(c2w[train_idx], c2w[cand], center=None)
+    order = np.argsort(angle, kind="stable")
+    inside = order[angle[order] <= max_angle_deg][:count]
+    if inside.size < max(1, count // 2):
+        inside = order[:max(1, count // 2)]
+    return cand[inside]
+
+
+def oracle_reliability(teacher, occupancy, model, scene, pseudo_idx, cfg: SelfTrainConfig,
+                       device=None) -> PseudoLabels:
+    """Labels of the oracle (Figure 1 of the paper): held-out dataset views ``pseudo_idx (P,)`` rendered by
+    the teacher; reliable where ``mean |C_T - C_gt| < cfg.oracle_max_error`` on ``model.eval_background``
+    (every pixel, background included); the prior goes to the other pixels with a reliable neighbour."""
+    pseudo_idx = np.asarray(pseudo_idx, dtype=np.int64).reshape(-1)
+    c2w = np.asarray(scene.c2w[pseudo_idx], dtype=np.float64)
+    pseudo = render_views(teacher, model, scene.intrinsics, c2w, occupancy=occupancy, device=device)
+    truth = gt_reliable_mask(np.clip(pseudo["rgb"], 0.0, 1.0), known_images(scene, pseudo_idx, model),
+                             cfg.oracle_max_error)
+    weights = truth.astype(np.float32)
+    everything = np.ones_like(truth)
+    neighbour, has = prior_weights(truth, cfg.kernel_size, cfg.kernel_std)
+    prior = (has & ~truth).astype(np.float32)
+    return PseudoLabels(c2w=c2w, rgb=pseudo["rgb"], z_depth=pseudo["z_depth"], acc=pseudo["acc"],
+                        similarity=weights.copy(), foreground=everything, tau=None, weights=weights,
+                        prior=prior, neighbour=neighbour)
 
 
 def _pseudo_rays(labels: PseudoLabels, intrinsics, model, device, q: int) -> PseudoRays:
@@ -384,16 +454,23 @@ def run_selftraining(scene, train_idx, test_idx, model, train_cfg, cfg: SelfTrai
         field = build_field(model, seed=tcfg.seed, steps=tcfg.steps)
         extra = None
         if k > 0:
-            if extractor is None:
+            if extractor is None and cfg.reliability == "features":
                 extractor = make_feature_extractor(cfg.features, **(
                     {"normalize_layers": cfg.normalize_layers} if cfg.features == "vgg19" else {}))
                 known_feats = extractor(known_images(scene, train_idx, model))
-            pseudo_c2w = _sample_pseudo_poses(scene, train_idx, cfg, k)
-            labels = estimate_reliability(teacher, occupancy, model, scene, train_idx, pseudo_c2w, extractor, cfg,
-                                          cfg.alpha(k), known_features=known_feats, device=device)
+            if cfg.reliability == "oracle":
+                pseudo_idx = dataset_pseudo_views(scene, train_idx, test_idx, cfg.pseudo_range(k),
+                                                  cfg.n_pseudo_per_input * train_idx.size)
+                labels = oracle_reliability(teacher, occupancy, model, scene, pseudo_idx, cfg, device=device)
+                pseudo_c2w = labels.c2w
+            else:
+                pseudo_c2w = _sample_pseudo_poses(scene, train_idx, cfg, k)
+                labels = estimate_reliability(teacher, occupancy, model, scene, train_idx, pseudo_c2w, extractor,
+                                              cfg, cfg.alpha(k), known_features=known_feats, device=device)
             reliable_fraction = labels.reliable_fraction
             _write_pseudo_pngs(out / f"iter_{k}" / "pseudo", labels)
-            tau_txt = "soft" if labels.tau is None else f"{labels.tau:.3f}"
+            tau_txt = ("oracle" if cfg.reliability == "oracle" else "soft" if labels.tau is None
+                       else f"{labels.tau:.3f}")
             echo(f"selftrain: iteration {k}: {pseudo_c2w.shape[0]} pseudo views within "
                  f"{cfg.pseudo_range(k):g} deg, tau {tau_txt}, reliable {100 * reliable_fraction:.1f} % of "
                  f"foreground, prior on {100 * float(labels.prior[labels.foreground].mean()):.1f} %")

@@ -46,6 +46,22 @@ def test_run_resume_summarize_report_plot(blender_scene, fake_fit_command, tmp_p
                    "senerf-bench run --scenes", "senerf-bench report", "22.05 ± 0.07", "torch"):
         assert needle in text, needle
 
+    # the generated section of a hand-written document is replaced in place; the rest is kept byte for byte
+    from senerf.bench.cli import REPORT_BEGIN, REPORT_END
+
+    doc = tmp_path / "BENCHMARKS.md"
+    head, tail = "# ours\n\nhand-written intro\n", "\nhand-written outro\n"
+    doc.write_text(f"{head}{REPORT_BEGIN}\nstale table\n{REPORT_END}{tail}")
+    assert main(["report", str(out / "results.jsonl"), "--into", str(doc)]) == 0
+    new = doc.read_text()
+    assert new.startswith(head + REPORT_BEGIN) and new.endswith(REPORT_END + tail)
+    assert "stale table" not in new and "22.05 ± 0.07" in new and "--into" in new
+    assert main(["report", str(out / "results.jsonl"), "--into", str(doc)]) == 0   # idempotent markers
+    assert doc.read_text().count(REPORT_BEGIN) == 1
+    doc.write_text("no markers\n")
+    assert main(["report", str(out / "results.jsonl"), "--into", str(doc)]) == 2
+    assert doc.read_text() == "no markers\n"
+
     assert main(["plot", str(out / "results.jsonl"), "--out-dir", str(tmp_path / "plots")]) == 0
     pngs = sorted((tmp_path / "plots").glob("*.png"))
     assert [p.name.split("_")[0] for p in pngs] == ["frontier", "iterations"]

@@ -139,3 +139,53 @@ def test_tiny_end_to_end_with_resume(tiny_scene, tmp_path, monkeypatch):
         controller_mod.run_selftraining(scene, train_idx, test_idx, model, tcfg,
                                         SelfTrainConfig(iterations=1, features="daisy"), out, progress=False,
                                         echo=lines.append)
+
+
+def _orbit_scene(azimuths_deg):
+    """A stand-in scene with cameras on the equator looking at the origin (only ``c2w`` is used)."""
+    from types import SimpleNamespace
+
+    c2w = []
+    for a in np.radians(azimuths_deg):
+        eye = 4.0 * np.array([np.cos(a), np.sin(a), 0.0])
+        c2w.append(senerf.geometry.look_at(eye, np.zeros(3), np.array([0.0, 0.0, 1.0])))
+    return SimpleNamespace(c2w=np.stack(c2w))
+
+
+def test_dataset_pseudo_views_nearest_held_out_within_range():
+    # views 0 (0 deg) and 1 (90 deg) known, 2 (5 deg) is a test view; held out: 3 (8), 4 (30), 5 (95), 6 (180)
+    scene = _orbit_scene([0, 90, 5, 8, 30, 95, 180])
+    pick = controller_mod.dataset_pseudo_views(scene, [0, 1], [2], max_angle_deg=10.0, count=4)
+    assert pick.tolist() == [5, 3]                     # 5 deg from view 1, 8 deg from view 0; never 2 (test)
+    # fewer than count // 2 inside the range: the nearest count // 2 regardless
+    pick = controller_mod.dataset_pseudo_views(scene, [0, 1], [2], max_angle_deg=1.0, count=6)
+    assert pick.tolist() == [5, 3, 4]
+    with pytest.raises(InputError):
+        controller_mod.dataset_pseudo_views(scene, [0, 1], [2, 3, 4, 5, 6], 10.0, 4)
+
+
+def test_oracle_masks_are_the_colour_error(tiny_scene, tmp_path):
+    import torch
+
+    from senerf.train import TrainConfig, choose_model, train_field, RayBatchSource
+    from senerf.selftrain.controller import known_images
+
+    scene = tiny_scene
+    train_idx, test_idx = scene.splits["train"][:3], scene.splits["test"]
+    model = choose_model(scene, train_idx, {"n_samples": 16, "resolution": 32, "occupancy_resolution": 16},
+                         echo=lambda s: None)
+    tcfg = TrainConfig(steps=10, batch_rays=128, warmup_steps=2, checkpoint_every=0, occupancy_warmup=4,
+                       occupancy_every=4)
+    from senerf.train import build_field
+    res = train_field(build_field(model), RayBatchSource.from_scene(scene, train_idx, model, torch.device("cpu")),
+                      tcfg, progress=False)
+    cfg = SelfTrainConfig(reliability="oracle", oracle_max_error=0.2)
+    held = controller_mod.dataset_pseudo_views(scene, train_idx, test_idx, 90.0, 4)
+    assert np.intersect1d(held, np.concatenate([train_idx, test_idx])).size == 0
+    labels = controller_mod.oracle_reliability(res.field, res.occupancy, model, scene, held, cfg)
+    err = np.abs(np.clip(labels.rgb, 0, 1) - known_images(scene, held, model)).mean(-1)
+    np.testing.assert_array_equal(labels.weights > 0, err < 0.2)
+    assert labels.foreground.all()                      # background pixels count too (paper Fig. 1)
+    assert not np.any((labels.prior > 0) & (labels.weights > 0))
+    with pytest.raises(InputError):
+        SelfTrainConfig(reliability="ground-truth")
