@@ -43,7 +43,10 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--scene", default=str(default_scene()), help="lego folder (default: $SENERF_DATA/...)")
     p.add_argument("--presets", nargs="+", default=list(PRESETS))
     p.add_argument("--seeds", nargs="+", type=int, default=[0])
-    p.add_argument("--iterations", type=int, default=3, help="SE-NeRF self-training rounds")
+    p.add_argument("--iterations", type=int, default=None,
+                   help="SE-NeRF self-training rounds (default: each preset's own count)")
+    p.add_argument("--methods", nargs="+", default=METHODS,
+                   help=f"harness methods (default: {' '.join(METHODS)}; e.g. senerf-oracle senerf-no-empty)")
     p.add_argument("--out", default=str(REPO / "benchmarks" / "out" / "frontier"))
     p.add_argument("--workers", type=int, default=1)
     p.add_argument("--ray-address", default=None)
@@ -55,8 +58,13 @@ def main(argv: list[str] | None = None) -> int:
     out = Path(args.out)
     results = out / "results.jsonl"
     scene = Path(args.scene)
-    specs = expand_specs([str(scene.resolve())], [PROTOCOL], METHODS, args.presets, args.seeds,
-                         iterations=args.iterations, check_scenes=scene.is_dir())
+    from senerf.train.config import PRESETS as TRAIN_PRESETS
+
+    specs = []
+    for preset in args.presets:
+        k = args.iterations if args.iterations is not None else int(TRAIN_PRESETS[preset]["iterations"])
+        specs += expand_specs([str(scene.resolve())], [PROTOCOL], args.methods, [preset], args.seeds,
+                              iterations=k, check_scenes=scene.is_dir())
     cfg_kw = {"fit_command": tuple(shlex.split(args.fit_command))} if args.fit_command else {}
     threads = 1 if args.ray_address else max(1, len(os.sched_getaffinity(0)) // args.workers)
     cfg = RunnerConfig(runs_dir=str((out / "runs").resolve()), timeout_s=args.timeout, threads=threads, **cfg_kw)

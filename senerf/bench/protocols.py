@@ -188,6 +188,8 @@ METHODS: dict[str, Method] = {m.name: m for m in (
     Method("senerf-threshold-fixed", ("--threshold", "fixed"), True, "fixed tau = 0.6"),
     Method("senerf-threshold-unified", ("--threshold", "unified"), True, "unified soft weighting"),
     Method("senerf-daisy", ("--features", "daisy"), True, "DAISY features instead of VGG-19"),
+    Method("senerf-no-empty", ("--empty-opacity", "0"), True,
+           "no empty-space distillation (the paper's letter: background pseudo pixels unused)"),
     Method("senerf-oracle", ("--reliability", "oracle"), True,
            "analysis: held-out dataset views as pseudo views, masks from ground-truth colour (paper Fig. 1)"),
 )}

@@ -83,7 +83,9 @@ class SelfTrainConfig:
         empty_opacity: pseudo pixels the teacher renders with opacity below this are reliable *empty* rays
             (colour = background, density distilled to the teacher's near-zero weights); 0 switches it off.
             The paper's reliability is defined for surface pixels only and says nothing of background
-            pixels; this is our addition, measured in BENCHMARKS.md (ablation ``senerf-no-empty``).
+            pixels; this is our addition (ablation ``senerf-no-empty``).  Measured on lego Extreme at
+            100x100, fast preset, one iteration, seed 0 (teacher 16.59 dB): off 16.78, 0.05 17.31, 0.2 17.44,
+            0.5 17.10 dB; the oracle with ground-truth masks 17.44 dB.  Hence 0.2.
     """
 
     iterations: int = 3
@@ -113,7 +115,7 @@ class SelfTrainConfig:
     seed: int = 0
     reliability: str = "features"
     oracle_max_error: float = 0.1
-    empty_opacity: float = 0.0
+    empty_opacity: float = 0.2
 
     def __post_init__(self) -> None:
         if self.reliability not in RELIABILITY_KINDS:

@@ -171,15 +171,14 @@ def _positive_int(value: Any, name: str, allow_zero: bool = False) -> None:
 
 
 PRESETS: dict[str, dict[str, Any]] = {
-    # "train": TrainConfig fields, "model": ModelConfig overrides.  Measured at 100x100 on the 2-core CPU
-    # machine (senerf/cli.py docstring): fast = lego Extreme baseline in ~1 min (train ~32 s + 200 test
-    # views); balanced = lego with all 100 views 26.4 dB in ~80 s.
-    # "iterations": self-training iterations when --iterations is not given.  fast = 1: lego Extreme SE-NeRF
-    # at 100x100 took 137 s with 1 iteration and 304 s with 3 (BENCHMARKS.md; the issue asks < 5 min), and
-    # the gain was in the first iteration.
+    # "train": TrainConfig fields, "model": ModelConfig overrides, "iterations": self-training iterations
+    # when --iterations is not given.  Sized on lego Extreme at 100x100 on the 2-core CPU machine with the
+    # 32-wide decoder (measured at commit f8d2dba+): a 600 x 1024 teacher trains in ~33 s (16.6 dB),
+    # 3000 x 1024 in ~104 s (17.7 dB); a self-training iteration costs about the teacher's time plus ~15 s
+    # of rendering and features.  BENCHMARKS.md's frontier table measures what each preset buys.
     "fast": dict(train=dict(steps=600, batch_rays=1024), model={}, iterations=1),
     "balanced": dict(train=dict(steps=1000, batch_rays=4096), model={}, iterations=3),
-    "quality": dict(train=dict(steps=3000, batch_rays=4096), model=dict(n_samples=64), iterations=3),
+    "quality": dict(train=dict(steps=3000, batch_rays=2048), model={}, iterations=1),
 }
 
 

@@ -189,3 +189,34 @@ def test_oracle_masks_are_the_colour_error(tiny_scene, tmp_path):
     assert not np.any((labels.prior > 0) & (labels.weights > 0))
     with pytest.raises(InputError):
         SelfTrainConfig(reliability="ground-truth")
+
+
+def test_empty_space_pixels_become_reliable(tiny_scene):
+    """With ``empty_opacity`` the teacher's low-opacity pseudo pixels are reliable (empty rays); 0 = off."""
+    import torch
+
+    from senerf.train import RayBatchSource, TrainConfig, build_field, choose_model, train_field
+    from senerf.selftrain import make_feature_extractor
+
+    scene = tiny_scene
+    train_idx = scene.splits["train"][:3]
+    model = choose_model(scene, train_idx, {"n_samples": 16, "resolution": 32, "occupancy_resolution": 16},
+                         echo=lambda s: None)
+    tcfg = TrainConfig(steps=10, batch_rays=128, warmup_steps=2, checkpoint_every=0, occupancy_warmup=4,
+                       occupancy_every=4)
+    res = train_field(build_field(model), RayBatchSource.from_scene(scene, train_idx, model, torch.device("cpu")),
+                      tcfg, progress=False)
+    ext = make_feature_extractor("daisy")
+    pseudo_c2w = np.asarray(scene.c2w[scene.splits["test"]], dtype=np.float64)
+    out = {}
+    for e in (0.0, 0.6):
+        cfg = SelfTrainConfig(features="daisy", empty_opacity=e)
+        out[e] = controller_mod.estimate_reliability(res.field, res.occupancy, model, scene, train_idx, pseudo_c2w,
+                                                     ext, cfg, 0.15)
+    low = out[0.6].acc < 0.6
+    assert low.any()
+    assert np.all(out[0.6].weights[low] == 1.0)
+    np.testing.assert_array_equal(out[0.6].weights[~low], out[0.0].weights[~low])
+    assert np.all(out[0.0].weights[~out[0.0].foreground] == 0.0)
+    with pytest.raises(InputError):
+        SelfTrainConfig(empty_opacity=1.5)
