@@ -118,6 +118,9 @@ def _as_intrinsics_list(intrinsics, k: int) -> list:
     return [intrinsics] * k
 
 
+_SAMPLE_CHUNK = 16384   # pixels per feature lookup in view_similarity
+
+
 def view_similarity(pseudo_features: np.ndarray, pseudo_z: np.ndarray, pseudo_opacity: np.ndarray,
                     pseudo_intrinsics, pseudo_c2w: np.ndarray,
                     known_features: np.ndarray, known_z: np.ndarray, known_intrinsics, known_c2w: np.ndarray,
@@ -181,8 +184,13 @@ def view_similarity(pseudo_features: np.ndarray, pseudo_z: np.ndarray, pseudo_op
         idx = np.flatnonzero(ok.reshape(-1))
         if idx.size == 0:
             continue
-        sampled = bilinear_sample(known_features[j], np.asarray(uv_all[j]).reshape(-1, 2)[idx])
-        per_view[j].reshape(-1)[idx] = cosine_similarity(flat_src[idx], sampled)
+        uv_j = np.asarray(uv_all[j]).reshape(-1, 2)
+        out_j = per_view[j].reshape(-1)
+        # in chunks: a (pixels, C) lookup makes ~6 temporaries of that size (4 GiB for a 504x378 view with
+        # VGG's 960 channels in one go; a few hundred MiB per chunk)
+        for start in range(0, idx.size, _SAMPLE_CHUNK):
+            part = idx[start:start + _SAMPLE_CHUNK]
+            out_j[part] = cosine_similarity(flat_src[part], bilinear_sample(known_features[j], uv_j[part]))
         valid[j] = ok
     similarity = per_view.max(axis=0)
     return ViewSimilarity(similarity=similarity, per_view=per_view, valid=valid, foreground=foreground)

@@ -85,6 +85,23 @@ def test_true_depth_high_wrong_depth_low_similarity():
     assert np.median(bad.similarity[seen_b]) < np.median(good.similarity[seen]) - 0.3
 
 
+def test_chunked_feature_lookup_is_exact(monkeypatch):
+    """view_similarity samples known features in pixel chunks (bounded memory): same result as one go."""
+    import senerf.selftrain.reliability as rel
+
+    known = [camera(-0.9), camera(1.0, 0.2)]
+    kf, kz = zip(*(plane_view(c) for c in known))
+    kf, kz, kc = np.stack(kf), np.stack(kz), np.stack(known)
+    pf, pz = plane_view(camera(0.05))
+    opacity = np.ones(K.size)
+    whole = view_similarity(pf, pz, opacity, K, camera(0.05), kf, kz, K, kc)
+    monkeypatch.setattr(rel, "_SAMPLE_CHUNK", 7)
+    parts = view_similarity(pf, pz, opacity, K, camera(0.05), kf, kz, K, kc)
+    assert whole.valid.sum() > 7 * 3
+    np.testing.assert_array_equal(parts.per_view, whole.per_view)
+    np.testing.assert_array_equal(parts.valid, whole.valid)
+
+
 def test_occluded_and_background_pixels():
     kf, kz = plane_view(camera(0.0))
     occluded = kz.copy()
