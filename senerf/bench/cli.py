@@ -92,6 +92,7 @@ def build_parser() -> argparse.ArgumentParser:
     ang.add_argument("--scene", required=True, help="the scene folder (poses are read from it)")
     ang.add_argument("--protocol", required=True, help="protocol of the lines to plot")
     ang.add_argument("--out", default="angles.png")
+    ang.add_argument("--preset", default=None, help="only runs of this preset (default: all)")
     return parser
 
 
@@ -241,8 +242,9 @@ def _cmd_angles(args: argparse.Namespace) -> int:
     proto = parse_protocol(args.protocol)
     scene = load_scene(args.scene, downscale=proto.downscale)
     name = Path(args.scene).name
+    # baselines at iteration 0, self-training runs at their last iteration (their iteration 0 is a baseline)
     lines = [r for r in latest_ok_lines(_load(args.results)) if r["scene"] == name and r["protocol"] == proto.name
-             and r["iteration"] in (0, r["iterations"])]
+             and r["iteration"] == r["iterations"] and (args.preset is None or r.get("preset") == args.preset)]
     if not lines:
         raise InputError(f"no finished runs of {name} under {proto.name}", file=args.results)
     center = (0.0, 0.0, 0.0) if proto.kind == "object" else None
@@ -250,7 +252,7 @@ def _cmd_angles(args: argparse.Namespace) -> int:
     psnr: dict[str, list] = {}
     for r in lines:
         a, p = line_view_angles(r, scene.c2w, center)
-        label = f"{r['method']} {preset_label(r)} iter {r['iteration']}"
+        label = f"{r['method']} {preset_label(r)}" + (f" iter {r['iteration']}" if r["iteration"] else "")
         angles.setdefault(label, []).extend(a.tolist())
         psnr.setdefault(label, []).extend(p.tolist())
     path = plot_psnr_vs_angle({k: np.asarray(v) for k, v in angles.items()},

@@ -135,25 +135,36 @@ def line_view_angles(line: dict, c2w: np.ndarray, center: np.ndarray | tuple | N
 
 
 def plot_psnr_vs_angle(angles_deg: dict[str, np.ndarray], psnr: dict[str, np.ndarray], path: str | Path,
-                       title: str = "") -> Path:
-    """Scatter of per-view PSNR vs angle to the nearest training view, one colour per label.
+                       title: str = "", bin_deg: float = 15.0) -> Path:
+    """Per-view PSNR vs angle to the nearest training view: faint points, and per label a line through the
+    mean PSNR of each ``bin_deg`` bin of angle (the paper's Figure 1 reading).
 
     Args:
         angles_deg: label -> (n,) degrees (from :func:`nearest_view_angles`).
         psnr: label -> (n,) per-view PSNR (``per_view["psnr"]`` of a results line).
+        bin_deg: width of the angle bins of the mean lines.
     """
-    fig = Figure(figsize=(6, 4.2))
+    fig = Figure(figsize=(6.4, 4.4))
     ax = fig.subplots()
     for label in angles_deg:
-        a, p = np.asarray(angles_deg[label]), np.asarray(psnr[label])
+        a, p = np.asarray(angles_deg[label], np.float64), np.asarray(psnr[label], np.float64)
         if a.shape != p.shape:
             raise ValueError(f"{label}: angles {a.shape} and psnr {p.shape} differ")
-        ax.scatter(a, p, s=10, alpha=0.6, label=label)
+        dots = ax.scatter(a, p, s=6, alpha=0.25)
+        edges = np.arange(0.0, a.max() + bin_deg, bin_deg) if a.size else np.zeros(1)
+        which = np.digitize(a, edges) - 1
+        centres, means = [], []
+        for b in range(len(edges) - 1):
+            sel = which == b
+            if sel.any():
+                centres.append((edges[b] + edges[b + 1]) / 2)
+                means.append(p[sel].mean())
+        ax.plot(centres, means, "-o", ms=3, color=dots.get_facecolor()[0][:3], label=label)
     ax.set_xlabel("angle to the nearest training view (degrees)")
     ax.set_ylabel("test-view PSNR (dB)")
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8)
-    ax.set_title(title or "PSNR vs distance from the training views")
+    ax.set_title(title or "PSNR vs distance from the training views", fontsize=9)
     return _save(fig, path)
 
 
