@@ -6,7 +6,8 @@ of our reliable masks against masks from ground-truth colour (``mean |C_T - C_gt
 feature extractor and threshold kind (paper: precision 98.03 %, recall 92.25 %).
 
 ``e2e``: the whole self-training run (``--iterations``, default 3) and a baseline given the run's whole
-wall-clock budget (``steps x run seconds / iteration-0 seconds`` steps); reports test PSNR per iteration, gains and wall time
+wall-clock budget (``steps x run seconds / iteration-0 seconds`` steps); reports test PSNR per iteration,
+gains and wall time
 (target: final >= iteration 0 + 1.5 dB and >= long baseline + 1.0 dB, whole run <= 15 min on 2 cores).
 
 Usage::

@@ -84,9 +84,10 @@ class SelfTrainConfig:
             (colour = background, density distilled to the teacher's near-zero weights); 0 switches it off.
             The paper's reliability is defined for surface pixels only and says nothing of background
             pixels; this is our addition (ablation ``senerf-no-empty``).  Empty rays also count as reliable
-            neighbours of the prior, so unreliable pixels at a silhouette get a partly empty prior target.  Measured on lego Extreme at
-            100x100, fast preset, one iteration, seed 0 (teacher 16.59 dB): off 16.78, 0.05 17.31, 0.2 17.44,
-            0.5 17.10 dB; the oracle with ground-truth masks 17.44 dB.  Hence 0.2.
+            neighbours of the prior, so unreliable pixels at a silhouette get a partly empty prior target.
+            Measured on lego Extreme at 100x100, fast preset, one iteration, student seed 0 (teacher
+            16.59 dB): off 16.78, 0.05 17.31, 0.2 17.44, 0.5 17.10 dB (student seed 1: off 16.73, 0.2
+            17.08; the student's seed alone moves the result by ~0.4 dB).  Hence 0.2.
     """
 
     iterations: int = 3
@@ -291,8 +292,8 @@ def dataset_pseudo_views(scene, train_idx, exclude_idx, max_angle_deg: float, co
 
     Candidates are the scene's views outside ``train_idx`` and ``exclude_idx`` (the test views); each gets
     the angle between its optical axis and the nearest known view's (``geometry.nearest_view_angles``).
-    The ``count`` nearest within ``max_angle_deg`` are returned; when fewer than ``count // 2`` lie within it, the nearest ``count // 2``
-    (at least 1) are taken regardless, so that an iteration always has pseudo views.
+    The ``count`` nearest within ``max_angle_deg`` are returned; when fewer than ``count // 2`` lie within
+    it, the nearest ``count // 2`` (at least 1) are taken regardless, so that an iteration has pseudo views.
 
     Args:
         scene: the :class:`senerf.data.Scene`; train_idx (m,), exclude_idx (k,): indices into it.
