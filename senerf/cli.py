@@ -103,6 +103,7 @@ def build_parser() -> argparse.ArgumentParser:
     m.add_argument("--field", choices=("kplanes", "nerf"))
     m.add_argument("--resolution", type=_positive_int("--resolution"), help="base plane resolution")
     m.add_argument("--samples", type=_positive_int("--samples"), help="samples per ray")
+    m.add_argument("--hidden", type=_positive_int("--hidden"), help="width of the K-Planes MLPs (default 32)")
     m.add_argument("--aabb", type=_float("--aabb", 0.0), help="half size of a cube AABB around the origin")
     m.add_argument("--background", choices=("random", "white", "black"), help="training background")
     m.add_argument("--no-view-dependence", action="store_true", help="colour ignores the view direction")
@@ -135,6 +136,8 @@ def _model_overrides(args) -> dict:
         out["resolution"] = args.resolution
     if args.samples:
         out["n_samples"] = args.samples
+    if args.hidden:
+        out["hidden"] = args.hidden
     if args.aabb:
         out["aabb"] = ((-args.aabb,) * 3, (args.aabb,) * 3)
     if args.background:
