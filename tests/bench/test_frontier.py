@@ -31,3 +31,16 @@ def test_frontier_dry_run_and_fake_run(blender_scene, fake_fit_command, tmp_path
     text = (out / "frontier.md").read_text()
     assert "16.65 / 0.75 / 0.24" in text and "python benchmarks/frontier.py" in text
     assert iio.imread(out / "frontier.png").ndim == 3
+
+
+def test_frontier_uses_each_presets_iterations_and_methods(blender_scene, tmp_path, capsys):
+    from senerf.train.config import PRESETS
+
+    frontier = _load()
+    assert frontier.main(["--scene", str(blender_scene), "--out", str(tmp_path / "fr"), "--dry-run",
+                          "--methods", "senerf", "senerf-oracle"]) == 0
+    fits = [ln for ln in capsys.readouterr().out.splitlines() if ln.startswith("senerf-fit ")]
+    assert len(fits) == 2 * 3 and sum("--reliability oracle" in f for f in fits) == 3
+    for f in fits:
+        preset = f.split("--preset ")[1].split()[0]
+        assert f"--iterations {PRESETS[preset]['iterations']} " in f
