@@ -178,7 +178,12 @@ def main(argv=None) -> int:
     torch.set_num_threads(max(1, os.cpu_count() or 1))
     Path(args.out).mkdir(parents=True, exist_ok=True)
     result = bench_masks(args) if args.mode == "masks" else bench_e2e(args)
-    result["argv"] = sys.argv
+    from datetime import datetime, timezone
+
+    from senerf.bench.machine import git_commit, machine_info
+
+    result.update(argv=sys.argv, commit=git_commit(), machine=machine_info("cpu"),
+                  timestamp=datetime.now(timezone.utc).isoformat(timespec="seconds"))
     (Path(args.out) / f"bench_{args.mode}.json").write_text(json.dumps(result, indent=1))
     return 0
 

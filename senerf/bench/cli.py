@@ -16,6 +16,7 @@ Exit status: 0 ok, 1 when some run failed (its line is in the results file; reru
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import shlex
 import sys
@@ -30,7 +31,7 @@ from .execute import RunnerConfig
 from .executors import make_executor
 from .plots import line_view_angles, plot_frontier, plot_iterations, plot_psnr_vs_angle
 from .protocols import METHODS, parse_protocol
-from .report import make_report
+from .report import make_report, mask_quality_section
 from .results import latest_ok_lines, load_results
 from .runner import pending_specs, run_benchmark
 from .specs import PRESETS, expand_specs
@@ -80,6 +81,8 @@ def build_parser() -> argparse.ArgumentParser:
     rep.add_argument("results")
     rep.add_argument("--out", default=None, help="write here (default: stdout)")
     rep.add_argument("--title", default="Benchmarks")
+    rep.add_argument("--masks", action="append", default=[],
+                     help="also tabulate a `bench_selftrain.py masks` result (bench_masks.json); repeatable")
     rep.add_argument("--into", default=None,
                      help="replace the text between the report markers of this markdown file (e.g. "
                           f"BENCHMARKS.md: '{REPORT_BEGIN}' ... '{REPORT_END}'), atomically")
@@ -175,6 +178,16 @@ def _cmd_summarize(args: argparse.Namespace) -> int:
 
 def _cmd_report(args: argparse.Namespace, argv: list[str]) -> int:
     text = make_report(_load(args.results), ["senerf-bench", *argv], title=args.title)
+    for name in args.masks:
+        try:
+            doc = json.loads(_read_text(Path(name)))
+        except ValueError as exc:
+            raise InputError(f"not JSON ({exc})", file=name) from None
+        try:
+            section = mask_quality_section(doc, name)
+        except ValueError:
+            raise InputError("not a `bench_selftrain.py masks` result", file=name) from None
+        text = text.rstrip("\n") + "\n\n" + section
     if args.into:
         path = Path(args.into)
         atomic_replace_text(path, splice_report(_read_text(path), text, path))

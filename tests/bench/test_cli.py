@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import shlex
 
 import imageio.v3 as iio
@@ -61,6 +62,22 @@ def test_run_resume_summarize_report_plot(blender_scene, fake_fit_command, tmp_p
     doc.write_text("no markers\n")
     assert main(["report", str(out / "results.jsonl"), "--into", str(doc)]) == 2
     assert doc.read_text() == "no markers\n"
+
+    # a bench_selftrain masks result is tabulated from its JSON
+    masks = tmp_path / "bench_masks.json"
+    row = dict(features="vgg19-norm", threshold="adaptive", tau=0.9475, precision=0.9265, recall=0.165,
+               fpr=0.0672, predicted_reliable_rate=0.149, gt_reliable_rate=0.837)
+    masks.write_text(json.dumps(dict(rows=[row, dict(row, threshold="unified", tau=None)], eval_angles_deg=[3.9, 11.9],
+                                     argv=["benchmarks/bench_selftrain.py", "masks"], commit="abc", steps=600,
+                                     batch_rays=1024, teacher_psnr=16.57, max_error=0.1, timestamp="2026-11-21T09:00")))
+    assert main(["report", str(out / "results.jsonl"), "--masks", str(masks), "--out", str(report_path)]) == 0
+    text = report_path.read_text()
+    assert "| vgg19-norm | adaptive | 0.948 | 92.65 % | 16.50 % | 6.72 % | 14.90 % | 83.70 % |" in text
+    assert "| vgg19-norm | unified | soft |" in text and "3.9-11.9 degrees" in text and "commit abc" in text
+    (tmp_path / "bad.json").write_text("{")
+    assert main(["report", str(out / "results.jsonl"), "--masks", str(tmp_path / "bad.json")]) == 2
+    (tmp_path / "other.json").write_text("{}")
+    assert main(["report", str(out / "results.jsonl"), "--masks", str(tmp_path / "other.json")]) == 2
 
     assert main(["plot", str(out / "results.jsonl"), "--out-dir", str(tmp_path / "plots")]) == 0
     pngs = sorted((tmp_path / "plots").glob("*.png"))
