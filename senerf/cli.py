@@ -115,7 +115,7 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--no-prior", action="store_true")
     s.add_argument("--empty-opacity", type=_float("--empty-opacity", 0.0), default=None,
                    help="pseudo pixels the teacher renders with opacity below this are distilled as empty "
-                        "space (0: off, the paper's letter; default: SelfTrainConfig.empty_opacity)")
+                        f"space (0: off, the paper's letter; default {EMPTY_OPACITY_DEFAULT:g})")
     s.add_argument("--reliability", choices=("features", "oracle"), default="features",
                    help="oracle: an analysis, not the method: held-out dataset views as pseudo views, reliable "
                         "where the teacher's colour matches the real image (the paper's Figure 1)")
@@ -126,6 +126,11 @@ def build_parser() -> argparse.ArgumentParser:
     o.add_argument("--quiet", action="store_true", help="no progress bars")
     p.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
     return p
+
+
+#: SelfTrainConfig.empty_opacity's default, repeated here so that --help needs no torch import (a test
+#: checks the two agree)
+EMPTY_OPACITY_DEFAULT = 0.2
 
 
 def _model_overrides(args) -> dict:

@@ -98,3 +98,10 @@ def test_tiny_end_to_end_fit_resume_and_overwrite(tiny_scene, tmp_path, capsys):
     # ... unless --overwrite
     assert main([str(tiny_scene), "--out", str(out), *TINY, "--seed", "1", "--overwrite"]) == 0
     assert json.loads((out / "metrics.json").read_text())["config"]["train"]["seed"] == 1
+
+
+def test_help_states_the_selftraining_defaults():
+    from senerf.cli import EMPTY_OPACITY_DEFAULT
+    from senerf.selftrain import SelfTrainConfig
+
+    assert SelfTrainConfig().empty_opacity == EMPTY_OPACITY_DEFAULT
