@@ -142,8 +142,9 @@ def _mean_rows(family: str, aggs: list[Aggregate]) -> list[str]:
     return out
 
 
-def _paper_method(method: str) -> str | None:
-    return {"baseline": "baseline", "senerf": "senerf"}.get(method)
+def _paper_method(method: str) -> str:
+    """The paper's row kind for one of our methods; ablations and analyses have none ("-")."""
+    return {"baseline": "baseline", "senerf": "senerf"}.get(method, "no published counterpart")
 
 
 def _paper_text(r: PaperRow) -> str:
