@@ -164,21 +164,28 @@ def test_dataset_pseudo_views_nearest_held_out_within_range():
         controller_mod.dataset_pseudo_views(scene, [0, 1], [2, 3, 4, 5, 6], 10.0, 4)
 
 
-def test_oracle_masks_are_the_colour_error(tiny_scene, tmp_path):
+@pytest.fixture(scope="module")
+def tiny_teacher(tiny_scene):
+    """A 10-step teacher on three views of the tiny scene: (train_idx, model, TrainResult)."""
     import torch
 
-    from senerf.train import TrainConfig, choose_model, train_field, RayBatchSource
-    from senerf.selftrain.controller import known_images
+    from senerf.train import RayBatchSource, TrainConfig, build_field, choose_model, train_field
 
-    scene = tiny_scene
-    train_idx, test_idx = scene.splits["train"][:3], scene.splits["test"]
-    model = choose_model(scene, train_idx, {"n_samples": 16, "resolution": 32, "occupancy_resolution": 16},
+    train_idx = tiny_scene.splits["train"][:3]
+    model = choose_model(tiny_scene, train_idx, {"n_samples": 16, "resolution": 32, "occupancy_resolution": 16},
                          echo=lambda s: None)
     tcfg = TrainConfig(steps=10, batch_rays=128, warmup_steps=2, checkpoint_every=0, occupancy_warmup=4,
                        occupancy_every=4)
-    from senerf.train import build_field
-    res = train_field(build_field(model), RayBatchSource.from_scene(scene, train_idx, model, torch.device("cpu")),
-                      tcfg, progress=False)
+    rays = RayBatchSource.from_scene(tiny_scene, train_idx, model, torch.device("cpu"))
+    return train_idx, model, train_field(build_field(model), rays, tcfg, progress=False)
+
+
+def test_oracle_masks_are_the_colour_error(tiny_scene, tiny_teacher):
+    from senerf.selftrain.controller import known_images
+
+    scene = tiny_scene
+    train_idx, model, res = tiny_teacher
+    test_idx = scene.splits["test"]
     cfg = SelfTrainConfig(reliability="oracle", oracle_max_error=0.2)
     held = controller_mod.dataset_pseudo_views(scene, train_idx, test_idx, 90.0, 4)
     assert np.intersect1d(held, np.concatenate([train_idx, test_idx])).size == 0
@@ -191,21 +198,12 @@ def test_oracle_masks_are_the_colour_error(tiny_scene, tmp_path):
         SelfTrainConfig(reliability="ground-truth")
 
 
-def test_empty_space_pixels_become_reliable(tiny_scene):
+def test_empty_space_pixels_become_reliable(tiny_scene, tiny_teacher):
     """With ``empty_opacity`` the teacher's low-opacity pseudo pixels are reliable (empty rays); 0 = off."""
-    import torch
-
-    from senerf.train import RayBatchSource, TrainConfig, build_field, choose_model, train_field
     from senerf.selftrain import make_feature_extractor
 
     scene = tiny_scene
-    train_idx = scene.splits["train"][:3]
-    model = choose_model(scene, train_idx, {"n_samples": 16, "resolution": 32, "occupancy_resolution": 16},
-                         echo=lambda s: None)
-    tcfg = TrainConfig(steps=10, batch_rays=128, warmup_steps=2, checkpoint_every=0, occupancy_warmup=4,
-                       occupancy_every=4)
-    res = train_field(build_field(model), RayBatchSource.from_scene(scene, train_idx, model, torch.device("cpu")),
-                      tcfg, progress=False)
+    train_idx, model, res = tiny_teacher
     ext = make_feature_extractor("daisy")
     pseudo_c2w = np.asarray(scene.c2w[scene.splits["test"]], dtype=np.float64)
     out = {}
