@@ -6,12 +6,12 @@ records its run's settings in ``run.json``; the same command resumes its own run
 refused unless ``--overwrite``.  See DESIGN.md ("Command line and outputs") for the ``metrics.json``
 contract.
 
-Measured on the 2-core CPU machine (lego, ``--downscale 4`` = 100x100, ``--iterations 0``, 200 test views,
-wall time including loading, training and evaluation; load average ~1.3):
+Measured on the 2-core CPU machine (lego, ``--downscale 4`` = 100x100, ``--iterations 0``, 200 test views;
+BENCHMARKS.md has the commands and commits):
 
-* ``--protocol all`` (balanced preset: 1000 steps x 4096 rays, 48 samples): 26.65 dB, SSIM 0.920, 85 s.
-* Extreme (views 0, 1, 51), ``--preset fast`` (600 steps x 1024 rays): 16.05 dB, SSIM 0.618, 44 s;
-  balanced preset: 17.13 dB, SSIM 0.691, 88 s.
+* ``--protocol all`` (balanced preset: 1000 steps x 4096 rays, 48 samples): 26.70 dB, SSIM 0.921, 65 s wall.
+* Extreme (views 0, 1, 51), seeds 0/1/2: ``--preset fast`` (600 steps x 1024 rays) 16.60 ± 0.63 dB in
+  31 s of fitting; balanced 16.58 ± 1.18 dB in 63 s; quality (3000 x 2048) 17.46 ± 0.20 dB in 122 s.
 """
 
 from __future__ import annotations
