@@ -23,7 +23,7 @@ from senerf.bench.executors import make_executor
 from senerf.bench.plots import plot_frontier
 from senerf.bench.report import make_report
 from senerf.bench.results import load_results
-from senerf.bench.runner import pending_specs, run_benchmark
+from senerf.bench.runner import dry_run_lines, run_benchmark
 from senerf.bench.specs import PRESETS, expand_specs
 from senerf.bench.summary import aggregate, final_iterations, format_table
 
@@ -70,10 +70,7 @@ def main(argv: list[str] | None = None) -> int:
     cfg = RunnerConfig(runs_dir=str((out / "runs").resolve()), timeout_s=args.timeout, threads=threads, **cfg_kw)
     command = ["python", "benchmarks/frontier.py", *argv]
     if args.dry_run:
-        todo, skipped = pending_specs(specs, results)
-        print(f"# {len(specs)} fits ({skipped} finished, {len(todo)} to run); results -> {results}")
-        for spec in todo:
-            print(shlex.join(["senerf-fit", *spec.fit_args(Path(cfg.runs_dir) / spec.dirname())]))
+        print("\n".join(dry_run_lines(specs, results, cfg.runs_dir)))
         return 0
     if not scene.is_dir():
         print(f"frontier: scene folder not found: {scene}", file=sys.stderr)

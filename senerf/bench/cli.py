@@ -20,11 +20,11 @@ import json
 import os
 import shlex
 import sys
-import tempfile
 from pathlib import Path
 
 import numpy as np
 
+from senerf.atomic import atomic_write_text
 from senerf.errors import InputError
 
 from .execute import RunnerConfig
@@ -33,7 +33,7 @@ from .plots import line_view_angles, plot_frontier, plot_iterations, plot_psnr_v
 from .protocols import METHODS, parse_protocol
 from .report import make_report, mask_quality_section
 from .results import latest_ok_lines, load_results
-from .runner import pending_specs, run_benchmark
+from .runner import dry_run_lines, run_benchmark
 from .specs import PRESETS, expand_specs
 from .summary import aggregate, final_iterations, format_table, preset_label
 
@@ -138,10 +138,7 @@ def _cmd_run(args: argparse.Namespace, argv: list[str]) -> int:
     cfg = RunnerConfig(runs_dir=str((out / "runs").resolve()), fit_command=fit_command,
                        timeout_s=args.timeout, threads=threads)
     if args.dry_run:
-        todo, skipped = pending_specs(specs, results)
-        print(f"# {len(specs)} runs: {skipped} already finished, {len(todo)} to run")
-        for spec in todo:
-            print(shlex.join(["senerf-fit", *spec.fit_args(Path(cfg.runs_dir) / spec.dirname())]))
+        print("\n".join(dry_run_lines(specs, results, cfg.runs_dir)))
         return 0
     try:
         executor = make_executor(args.workers, args.ray_address, args.cpus_per_run)
@@ -190,7 +187,7 @@ def _cmd_report(args: argparse.Namespace, argv: list[str]) -> int:
         text = text.rstrip("\n") + "\n\n" + section
     if args.into:
         path = Path(args.into)
-        atomic_replace_text(path, splice_report(_read_text(path), text, path))
+        atomic_write_text(path, splice_report(_read_text(path), text, path))
         print(f"updated the generated section of {path}")
     if args.out:
         Path(args.out).parent.mkdir(parents=True, exist_ok=True)
@@ -221,18 +218,6 @@ def splice_report(document: str, report: str, path: Path | str = "document") -> 
                          file=path, field="report markers")
     head = document[:i + len(REPORT_BEGIN)]
     return head + "\n" + report.rstrip("\n") + "\n" + document[j:]
-
-
-def atomic_replace_text(path: Path, text: str) -> None:
-    """Write ``text`` to ``path`` through a temporary file in the same folder and ``os.replace``."""
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent or ".")
-    try:
-        with os.fdopen(fd, "w") as fh:
-            fh.write(text)
-        os.replace(tmp, path)
-    finally:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
 
 
 def _cmd_plot(args: argparse.Namespace) -> int:

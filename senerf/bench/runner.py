@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import concurrent.futures as cf
 from dataclasses import dataclass
+import shlex
 from pathlib import Path
 from typing import Callable
 
@@ -19,7 +20,7 @@ from .machine import git_commit
 from .results import append_lines, finished_keys, load_results, result_lines
 from .specs import RunSpec
 
-__all__ = ["BenchOutcome", "pending_specs", "run_benchmark"]
+__all__ = ["BenchOutcome", "pending_specs", "dry_run_lines", "run_benchmark"]
 
 
 @dataclass(frozen=True)
@@ -29,6 +30,13 @@ class BenchOutcome:
     skipped: int
     ok: int
     failed: int
+
+
+def dry_run_lines(specs: list[RunSpec], results_path: str | Path, runs_dir: str | Path) -> list[str]:
+    """What ``--dry-run`` prints: a count line, then the ``senerf-fit`` command of every pending run."""
+    todo, skipped = pending_specs(specs, results_path)
+    return ([f"# {len(specs)} runs: {skipped} already finished, {len(todo)} to run"]
+            + [shlex.join(["senerf-fit", *spec.fit_args(Path(runs_dir) / spec.dirname())]) for spec in todo])
 
 
 def pending_specs(specs: list[RunSpec], results_path: str | Path) -> tuple[list[RunSpec], int]:

@@ -64,12 +64,17 @@ def test_pseudo_view_equal_to_known_view_is_fully_consistent():
     np.testing.assert_allclose(res.similarity, 1.0, atol=1e-5)
 
 
-def test_true_depth_high_wrong_depth_low_similarity():
+def _two_known_views_and_a_pseudo_view():
+    """Features and depths of the textured plane seen by two known cameras and a pseudo camera between them:
+    (known features (2,H,W,C), known z (2,H,W), known c2w (2,4,4), pseudo features, pseudo z, opacity)."""
     known = [camera(-0.9), camera(1.0, 0.2)]
     kf, kz = zip(*(plane_view(c) for c in known))
-    kf, kz, kc = np.stack(kf), np.stack(kz), np.stack(known)
     pf, pz = plane_view(camera(0.05))
-    opacity = np.ones(K.size)
+    return np.stack(kf), np.stack(kz), np.stack(known), pf, pz, np.ones(K.size)
+
+
+def test_true_depth_high_wrong_depth_low_similarity():
+    kf, kz, kc, pf, pz, opacity = _two_known_views_and_a_pseudo_view()
     good = view_similarity(pf, pz, opacity, K, camera(0.05), kf, kz, K, kc)
     seen = good.valid.any(axis=0)
     assert seen.mean() > 0.9
@@ -89,11 +94,7 @@ def test_chunked_feature_lookup_is_exact(monkeypatch):
     """view_similarity samples known features in pixel chunks (bounded memory): same result as one go."""
     import senerf.selftrain.reliability as rel
 
-    known = [camera(-0.9), camera(1.0, 0.2)]
-    kf, kz = zip(*(plane_view(c) for c in known))
-    kf, kz, kc = np.stack(kf), np.stack(kz), np.stack(known)
-    pf, pz = plane_view(camera(0.05))
-    opacity = np.ones(K.size)
+    kf, kz, kc, pf, pz, opacity = _two_known_views_and_a_pseudo_view()
     whole = view_similarity(pf, pz, opacity, K, camera(0.05), kf, kz, K, kc)
     monkeypatch.setattr(rel, "_SAMPLE_CHUNK", 7)
     parts = view_similarity(pf, pz, opacity, K, camera(0.05), kf, kz, K, kc)
