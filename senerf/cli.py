@@ -116,6 +116,11 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--empty-opacity", type=_float("--empty-opacity", 0.0), default=None,
                    help="pseudo pixels the teacher renders with opacity below this are distilled as empty "
                         f"space (0: off, the paper's letter; default {EMPTY_OPACITY_DEFAULT:g})")
+    s.add_argument("--pseudo-range", type=_float("--pseudo-range", 0.0), default=None, metavar="DEG",
+                   help="azimuth/elevation range of the first iteration's pseudo views around each input "
+                        f"(default {PSEUDO_RANGE_DEFAULT:g}, the paper's)")
+    s.add_argument("--pseudo-range-step", type=_float("--pseudo-range-step", 0.0), default=None, metavar="DEG",
+                   help=f"widening of that range per later iteration (default {PSEUDO_RANGE_STEP_DEFAULT:g})")
     s.add_argument("--reliability", choices=("features", "oracle"), default="features",
                    help="oracle: an analysis, not the method: held-out dataset views as pseudo views, reliable "
                         "where the teacher's colour matches the real image (the paper's Figure 1)")
@@ -131,6 +136,17 @@ def build_parser() -> argparse.ArgumentParser:
 #: SelfTrainConfig.empty_opacity's default, repeated here so that --help needs no torch import (a test
 #: checks the two agree)
 EMPTY_OPACITY_DEFAULT = 0.2
+#: SelfTrainConfig.pseudo_range_deg / pseudo_range_step_deg defaults, likewise repeated and tested
+PSEUDO_RANGE_DEFAULT = 10.0
+PSEUDO_RANGE_STEP_DEFAULT = 5.0
+
+
+def _selftrain_overrides(args) -> dict:
+    """SelfTrainConfig fields given on the command line (absent ones keep the config's defaults, and stay
+    out of the resume fingerprint so runs made before a flag existed still resume)."""
+    pairs = (("empty_opacity", args.empty_opacity), ("pseudo_range_deg", args.pseudo_range),
+             ("pseudo_range_step_deg", args.pseudo_range_step))
+    return {k: v for k, v in pairs if v is not None}
 
 
 def _model_overrides(args) -> dict:
@@ -264,8 +280,7 @@ def _run(args, argv) -> int:
         else:
             st_cfg = selftrain[0](iterations=iterations, features=args.features, threshold=args.threshold,
                                   density_distill=not args.no_density_distill, prior=not args.no_prior,
-                                  reliability=args.reliability, seed=args.seed,
-                                  **({} if args.empty_opacity is None else {"empty_opacity": args.empty_opacity}))
+                                  reliability=args.reliability, seed=args.seed, **_selftrain_overrides(args))
 
     out = args.out if args.out is not None else Path("runs") / f"{scene.name}-{protocol}"
     config = dict(scene_dir=str(scene_dir.resolve()), format=fmt, downscale=downscale, protocol=protocol,
@@ -278,7 +293,9 @@ def _run(args, argv) -> int:
     identity["train"] = {k: v for k, v in identity["train"].items() if k != "device"}
     identity["selftrain_flags"] = dict(features=args.features, threshold=args.threshold,
                                        density_distill=not args.no_density_distill, prior=not args.no_prior,
-                                       reliability=args.reliability, empty_opacity=args.empty_opacity)
+                                       reliability=args.reliability, empty_opacity=args.empty_opacity,
+                                       **{k: v for k, v in _selftrain_overrides(args).items()
+                                          if k != "empty_opacity"})
     _prepare_out(out, identity, args.overwrite)
     print(f"{PROG}: writing to {out}")
 

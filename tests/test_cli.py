@@ -101,7 +101,35 @@ def test_tiny_end_to_end_fit_resume_and_overwrite(tiny_scene, tmp_path, capsys):
 
 
 def test_help_states_the_selftraining_defaults():
-    from senerf.cli import EMPTY_OPACITY_DEFAULT
+    from senerf.cli import EMPTY_OPACITY_DEFAULT, PSEUDO_RANGE_DEFAULT, PSEUDO_RANGE_STEP_DEFAULT
     from senerf.selftrain import SelfTrainConfig
 
     assert SelfTrainConfig().empty_opacity == EMPTY_OPACITY_DEFAULT
+    assert SelfTrainConfig().pseudo_range_deg == PSEUDO_RANGE_DEFAULT
+    assert SelfTrainConfig().pseudo_range_step_deg == PSEUDO_RANGE_STEP_DEFAULT
+
+
+@pytest.mark.parametrize("flags, expected", [
+    ([], {}),
+    (["--pseudo-range", "15", "--pseudo-range-step", "20", "--empty-opacity", "0"],
+     {"pseudo_range_deg": 15.0, "pseudo_range_step_deg": 20.0, "empty_opacity": 0.0}),
+])
+def test_selftraining_flags_reach_the_config(tiny_scene, tmp_path, monkeypatch, flags, expected):
+    import senerf.cli as cli
+    from senerf.selftrain import SelfTrainConfig
+
+    seen = []
+
+    def fake_run(scene, train_idx, test_idx, model, train_cfg, st_cfg, out, **kw):
+        seen.append(st_cfg)
+        return {"iterations": []}
+
+    monkeypatch.setattr(cli, "_selftrain_available", lambda: ((SelfTrainConfig, fake_run), None))
+    argv = [str(tiny_scene), "--out", str(tmp_path / "o"), *TINY, "--iterations", "2", *flags]
+    assert main(argv) == 0
+    (cfg,) = seen
+    assert cfg.iterations == 2
+    defaults = SelfTrainConfig()
+    for field in ("pseudo_range_deg", "pseudo_range_step_deg", "empty_opacity"):
+        assert getattr(cfg, field) == expected.get(field, getattr(defaults, field)), field
+    assert cfg.pseudo_range(2) == cfg.pseudo_range_deg + cfg.pseudo_range_step_deg

@@ -190,6 +190,8 @@ METHODS: dict[str, Method] = {m.name: m for m in (
     Method("senerf-daisy", ("--features", "daisy"), True, "DAISY features instead of VGG-19"),
     Method("senerf-no-empty", ("--empty-opacity", "0"), True,
            "no empty-space distillation (the paper's letter: background pseudo pixels unused)"),
+    Method("senerf-range-step20", ("--pseudo-range-step", "20"), True,
+           "pseudo-view range widened by 20 degrees per iteration (10, 30, 50) instead of 5 (10, 15, 20)"),
     Method("senerf-oracle", ("--reliability", "oracle"), True,
            "analysis: held-out dataset views as pseudo views, masks from ground-truth colour (paper Fig. 1)"),
 )}

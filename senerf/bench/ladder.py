@@ -1,0 +1,141 @@
+"""Does each slower preset buy PSNR?  Paired comparisons over seeds (issue #5's rule for presets).
+
+A *rung* is one (scene, protocol, method, preset label, K) group at its final iteration: what a user gets
+from ``senerf-fit --preset P --iterations K``.  Within one (scene, protocol, method), every rung is compared
+with every faster one (by mean seconds) over the seeds both have: the per-seed PSNR differences
+``slower - faster`` give the gain (mean ± sample std) and a one-sided paired t-test (H1: the slower rung is
+better).  The rule, stated once here and in the report: a slower rung *buys measurable PSNR* over a faster
+one when it has at least ``min_seeds`` paired seeds and ``p < alpha`` (defaults 3 and 0.05).  Seeds pair
+runs that share the initialisation and the ray order's seed, which removes part of the seed-to-seed spread
+(few-shot PSNR moves ~0.6 dB with the seed alone).
+
+No torch import (the harness summarises results on machines without it).
+"""
+
+from __future__ import annotations
+
+import math
+from collections import defaultdict
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import stats
+
+from .results import latest_ok_lines
+from .summary import Stat, preset_label
+
+__all__ = ["Rung", "preset_ladder", "paired_gain_p_value", "ladder_markdown", "LADDER_ALPHA", "LADDER_MIN_SEEDS"]
+
+LADDER_ALPHA = 0.05
+LADDER_MIN_SEEDS = 3
+
+
+@dataclass(frozen=True)
+class Rung:
+    """One comparison of a slower preset against a faster one.
+
+    Attributes:
+        scene, protocol, method: the group both rungs belong to.
+        slower, faster: rung labels, ``"balanced K=3"`` (preset label and self-training rounds).
+        seeds: the seeds both rungs have (the pairs).
+        slower_seconds, faster_seconds: mean seconds of fitting over those seeds.
+        gain: stats of the per-seed PSNR differences ``slower - faster`` (dB).
+        p_value: one-sided paired t-test p-value (``None`` with fewer than 2 pairs).
+        measurable: ``p_value < alpha`` with at least ``min_seeds`` pairs.
+    """
+
+    scene: str
+    protocol: str
+    method: str
+    slower: str
+    faster: str
+    seeds: tuple[int, ...]
+    slower_seconds: float
+    faster_seconds: float
+    gain: Stat
+    p_value: float | None
+    measurable: bool
+
+
+def paired_gain_p_value(diffs) -> float | None:
+    """One-sided p-value of the paired t-test that the mean of ``diffs`` (shape ``(n,)``) is above 0.
+
+    ``None`` for fewer than 2 differences; with zero spread, 0.0 when every difference is positive and
+    1.0 otherwise (the t statistic is infinite or undefined there).
+
+    Example:
+        >>> round(paired_gain_p_value([1.0, 2.0, 3.0]), 4)   # t = 2 / (1 / sqrt 3), 2 dof
+        0.0371
+    """
+    d = np.asarray(diffs, dtype=np.float64).reshape(-1)
+    if d.size < 2:
+        return None
+    if float(d.std(ddof=1)) == 0.0:
+        return 0.0 if float(d.mean()) > 0 else 1.0
+    return float(stats.ttest_1samp(d, 0.0, alternative="greater").pvalue)
+
+
+def _final_lines(records: list[dict]) -> dict[tuple, dict[int, dict]]:
+    """(scene, protocol, method, rung label) -> seed -> the run's last-iteration line."""
+    finals: dict[tuple, dict[int, dict]] = defaultdict(dict)
+    for r in latest_ok_lines(records):
+        k = int(r.get("iterations", 0))
+        key = (r["scene"], r["protocol"], r["method"], f"{preset_label(r)} K={k}")
+        best = finals[key].get(r["seed"])
+        if best is None or r["iteration"] > best["iteration"]:
+            finals[key][r["seed"]] = r
+    return finals
+
+
+def preset_ladder(records: list[dict], alpha: float = LADDER_ALPHA,
+                  min_seeds: int = LADDER_MIN_SEEDS) -> list[Rung]:
+    """Every slower rung against every faster one, per (scene, protocol, method); see the module doc.
+
+    Args:
+        records: results-file lines (:func:`senerf.bench.results.load_results`); failed runs and earlier
+            attempts are left out (:func:`senerf.bench.results.latest_ok_lines`).
+        alpha: significance level of the one-sided paired t-test.
+        min_seeds: fewest paired seeds for a verdict of "measurable".
+
+    Returns:
+        Rungs sorted by (scene, protocol, method, slower's seconds, faster's seconds); groups with a single
+        rung give none.
+    """
+    finals = _final_lines(records)
+    groups: dict[tuple, list[str]] = defaultdict(list)
+    for scene, protocol, method, label in finals:
+        groups[(scene, protocol, method)].append(label)
+    out = []
+    for (scene, protocol, method), labels in sorted(groups.items()):
+        secs = {lb: float(np.mean([r["seconds_cumulative"] for r in finals[(scene, protocol, method, lb)].values()]))
+                for lb in labels}
+        order = sorted(labels, key=lambda lb: (secs[lb], lb))
+        for i, slower in enumerate(order):
+            for faster in order[:i]:
+                a, b = finals[(scene, protocol, method, slower)], finals[(scene, protocol, method, faster)]
+                seeds = tuple(sorted(set(a) & set(b)))
+                diffs = [a[s]["psnr"] - b[s]["psnr"] for s in seeds]
+                p = paired_gain_p_value(diffs)
+                out.append(Rung(scene, protocol, method, slower, faster, seeds,
+                                float(np.mean([a[s]["seconds_cumulative"] for s in seeds])) if seeds else math.nan,
+                                float(np.mean([b[s]["seconds_cumulative"] for s in seeds])) if seeds else math.nan,
+                                Stat.of(diffs), p,
+                                measurable=p is not None and len(seeds) >= min_seeds and p < alpha))
+    return out
+
+
+def ladder_markdown(rungs: list[Rung], alpha: float = LADDER_ALPHA, min_seeds: int = LADDER_MIN_SEEDS) -> list[str]:
+    """Markdown lines: the rule, then one table row per rung (empty list when there are no rungs)."""
+    if not rungs:
+        return []
+    out = ["", f"Does each slower preset buy PSNR? Paired over seeds (same seed in both rungs): gain = slower - "
+           f"faster, mean ± std; one-sided paired t-test; *measurable* when p < {alpha:g} with at least "
+           f"{min_seeds} pairs.", "",
+           "| scene | method | slower | faster | pairs | seconds (slower / faster) | PSNR gain | p | measurable |",
+           "|" + "---|" * 9]
+    for r in rungs:
+        p = "-" if r.p_value is None else f"{r.p_value:.3f}"
+        verdict = "yes" if r.measurable else ("no" if len(r.seeds) >= min_seeds else "too few seeds")
+        out.append(f"| {r.scene} | {r.method} | {r.slower} | {r.faster} | {len(r.seeds)} | "
+                   f"{r.slower_seconds:.0f} / {r.faster_seconds:.0f} | {r.gain.text(2)} | {p} | {verdict} |")
+    return out

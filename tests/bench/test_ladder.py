@@ -1,0 +1,66 @@
+"""Preset ladder: paired gains over seeds and the one-sided t-test, against closed forms."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+
+from senerf.bench.ladder import ladder_markdown, paired_gain_p_value, preset_ladder
+
+
+def _line(seed, preset, psnr, seconds, k=1, iteration=None, method="senerf", status="ok"):
+    it = k if iteration is None else iteration
+    return {"run_key": f"lego|p|{method}|{preset}|seed{seed}|K{k}", "attempt": f"a{seed}{preset}{k}{method}",
+            "status": status, "scene": "lego", "protocol": "synthetic-extreme3@100", "method": method,
+            "preset": preset, "seed": seed, "iterations": k, "iteration": it, "psnr": psnr,
+            "seconds_cumulative": seconds}
+
+
+def _t_sf_2dof(t: float) -> float:
+    """Upper tail of Student's t with 2 degrees of freedom, closed form: 1/2 (1 - t / sqrt(t^2 + 2))."""
+    return 0.5 * (1.0 - t / math.sqrt(t * t + 2.0))
+
+
+def test_p_value_matches_closed_form_for_two_dof():
+    # diffs 1, 2, 3: mean 2, sample std 1, t = 2 * sqrt(3)
+    assert paired_gain_p_value([1.0, 2.0, 3.0]) == pytest.approx(_t_sf_2dof(2 * math.sqrt(3)), rel=1e-9)
+    # a negative mean gives p above one half, mirrored
+    assert paired_gain_p_value([-1.0, -2.0, -3.0]) == pytest.approx(1 - _t_sf_2dof(2 * math.sqrt(3)), rel=1e-9)
+
+
+def test_p_value_edge_cases():
+    assert paired_gain_p_value([0.4]) is None
+    assert paired_gain_p_value([0.5, 0.5, 0.5]) == 0.0
+    assert paired_gain_p_value([0.0, 0.0]) == 1.0
+
+
+def test_ladder_pairs_common_seeds_and_orders_by_seconds():
+    records = []
+    for s, (f, b, q) in enumerate([(17.0, 18.0, 17.1), (16.0, 17.5, 16.2), (17.5, 18.2, 17.4), (16.5, 17.1, 0)]):
+        records += [_line(s, "fast", 0.0, 30, iteration=0), _line(s, "fast", f, 80)]
+        records += [_line(s, "balanced", b, 300, k=3)]
+        if s < 3:  # quality has seeds 0-2 only
+            records += [_line(s, "quality", q, 200)]
+    records.append(_line(9, "balanced", 30.0, 300, k=3, status="failed"))   # failed: left out
+    rungs = preset_ladder(records)
+    assert [(r.slower, r.faster) for r in rungs] == [("quality K=1", "fast K=1"), ("balanced K=3", "fast K=1"),
+                                                    ("balanced K=3", "quality K=1")]
+    q_f, b_f, b_q = rungs
+    assert q_f.seeds == (0, 1, 2) and b_f.seeds == (0, 1, 2, 3)
+    assert b_f.gain.mean == pytest.approx((1.0 + 1.5 + 0.7 + 0.6) / 4)
+    assert b_f.slower_seconds == pytest.approx(300) and b_f.faster_seconds == pytest.approx(80)
+    assert b_f.measurable and b_f.p_value < 0.05
+    assert q_f.gain.mean == pytest.approx((0.1 + 0.2 - 0.1) / 3) and not q_f.measurable
+    md = "\n".join(ladder_markdown(rungs))
+    assert "| lego | senerf | balanced K=3 | fast K=1 | 4 | 300 / 80 | 0.95 ± 0.40 |" in md
+    assert md.count("| yes |") == 2 and md.count("| no |") == 1
+
+
+def test_too_few_seeds_is_never_measurable():
+    records = [_line(0, "fast", 10.0, 10), _line(0, "quality", 20.0, 100),
+               _line(1, "fast", 10.0, 10), _line(1, "quality", 21.0, 100)]
+    (rung,) = preset_ladder(records)
+    assert rung.p_value is not None and rung.p_value < 0.05 and not rung.measurable
+    assert "too few seeds" in "\n".join(ladder_markdown([rung]))
+    assert preset_ladder([_line(0, "fast", 10.0, 10)]) == [] and ladder_markdown([]) == []
