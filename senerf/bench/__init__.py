@@ -8,7 +8,8 @@ and :mod:`senerf.bench.results` for the line schema.  No torch import.
 from .execute import RunnerConfig, check_protocol, default_fit_command, execute_run, parse_metrics
 from .executors import Executor, LocalExecutor, RayExecutor, make_executor
 from .machine import git_commit, machine_info
-from .plots import (line_view_angles, mask_confusion, nearest_view_angles, plot_frontier, plot_iterations,
+from .ladder import Rung, ladder_markdown, paired_gain_p_value, preset_ladder
+from .plots import (line_view_angles, nearest_view_angles, plot_frontier, plot_iterations,
                     plot_mask_quality, plot_psnr_vs_angle)
 from .protocols import METHODS, Method, Protocol, get_method, native_size, parse_protocol
 from .report import PAPER_NUMBERS, PaperRow, make_report, paper_rows
@@ -27,6 +28,6 @@ __all__ = [
     "Stat", "Aggregate", "aggregate", "final_iterations", "format_table", "preset_label",
     "PaperRow", "PAPER_NUMBERS", "paper_rows", "make_report",
     "plot_frontier", "plot_iterations", "nearest_view_angles", "line_view_angles", "plot_psnr_vs_angle",
-    "mask_confusion", "plot_mask_quality",
+    "plot_mask_quality", "Rung", "preset_ladder", "paired_gain_p_value", "ladder_markdown",
     "git_commit", "machine_info",
 ]

@@ -6,9 +6,9 @@
 * :func:`plot_psnr_vs_angle` (+ :func:`nearest_view_angles`, :func:`line_view_angles`): per-test-view PSNR
   against the angle to the nearest training camera.  ``metrics.json`` gives per-view PSNR and the view
   indices; the poses come from the scene (``senerf-bench angles`` loads it), no fit hook needed.
-* :func:`plot_mask_quality` (+ :func:`mask_confusion`): reliability-mask precision / recall / false-positive
-  rate per feature extractor and threshold.  Needs a fit hook that saves the predicted reliability masks and
-  masks from ground-truth colour per pseudo view; ``senerf-fit`` does not write the latter yet.
+* :func:`plot_mask_quality`: reliability-mask precision / recall / false-positive rate per feature
+  extractor and threshold (rows from ``benchmarks/bench_selftrain.py masks``, which scores the masks with
+  :func:`senerf.selftrain.reliability.mask_quality` against masks from ground-truth colour).
 """
 
 from __future__ import annotations
@@ -25,7 +25,7 @@ from senerf.geometry import nearest_view_angles  # re-exported: the bench's angl
 from .summary import Aggregate
 
 __all__ = ["plot_frontier", "plot_iterations", "nearest_view_angles", "line_view_angles", "plot_psnr_vs_angle",
-           "mask_confusion", "plot_mask_quality"]
+           "plot_mask_quality"]
 
 _PRESET_ORDER = {"fast": 0, "balanced": 1, "quality": 2}
 
@@ -168,32 +168,12 @@ def plot_psnr_vs_angle(angles_deg: dict[str, np.ndarray], psnr: dict[str, np.nda
     return _save(fig, path)
 
 
-def mask_confusion(predicted: np.ndarray, truth: np.ndarray) -> dict[str, float]:
-    """Precision, recall and false-positive rate of a predicted reliability mask.
-
-    Args:
-        predicted: (...) bool, rays the method labelled reliable.
-        truth: (...) bool, same shape, rays whose pseudo colour matches the ground truth.
-
-    Returns:
-        dict(precision, recall, fpr, tp, fp, fn, tn); a rate with an empty denominator is NaN.
-    """
-    p, t = np.asarray(predicted, bool), np.asarray(truth, bool)
-    if p.shape != t.shape:
-        raise ValueError(f"predicted {p.shape} and truth {t.shape} differ")
-    tp, fp = int(np.sum(p & t)), int(np.sum(p & ~t))
-    fn, tn = int(np.sum(~p & t)), int(np.sum(~p & ~t))
-    rate = lambda a, b: a / b if b else float("nan")  # noqa: E731
-    return {"precision": rate(tp, tp + fp), "recall": rate(tp, tp + fn), "fpr": rate(fp, fp + tn),
-            "tp": tp, "fp": fp, "fn": fn, "tn": tn}
-
-
 def plot_mask_quality(records: list[dict], path: str | Path, title: str = "") -> Path:
     """Grouped bars of precision, recall and FPR per (feature extractor, threshold).
 
     Args:
         records: dicts with ``feature`` (``"vgg19"``), ``threshold`` (``"adaptive"``), ``precision``,
-            ``recall``, ``fpr`` (e.g. :func:`mask_confusion` results plus the two labels).
+            ``recall``, ``fpr`` (e.g. :func:`senerf.selftrain.reliability.mask_quality` results plus the two labels).
     """
     if not records:
         raise ValueError("no mask-quality records to plot")

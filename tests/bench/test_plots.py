@@ -1,4 +1,4 @@
-"""Analysis helpers: angular distance to the training views, mask confusion, plot files."""
+"""Analysis helpers: angular distance to the training views, plot files."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import imageio.v3 as iio
 import numpy as np
 import pytest
 
-from senerf.bench.plots import mask_confusion, nearest_view_angles, plot_mask_quality, plot_psnr_vs_angle
+from senerf.bench.plots import nearest_view_angles, plot_mask_quality, plot_psnr_vs_angle
 
 
 def _pose_at(center):
@@ -26,21 +26,12 @@ def test_nearest_view_angles_known_geometry():
         nearest_view_angles(np.eye(4), test)
 
 
-def test_mask_confusion_counts():
-    pred = np.array([[1, 1, 0, 0], [1, 0, 0, 1]], bool)
-    true = np.array([[1, 0, 0, 1], [1, 0, 1, 1]], bool)
-    m = mask_confusion(pred, true)
-    assert (m["tp"], m["fp"], m["fn"], m["tn"]) == (3, 1, 2, 2)
-    assert m["precision"] == pytest.approx(0.75) and m["recall"] == pytest.approx(0.6)
-    assert m["fpr"] == pytest.approx(1 / 3)
-    assert np.isnan(mask_confusion(np.zeros(3, bool), np.zeros(3, bool))["precision"])
-
-
 def test_analysis_plots_write_pngs(tmp_path):
     rng = np.random.default_rng(0)
     a = rng.uniform(0, 90, 20)
     p1 = plot_psnr_vs_angle({"senerf": a}, {"senerf": 25 - 0.1 * a}, tmp_path / "angle.png")
-    recs = [{"feature": f, "threshold": t, **mask_confusion(rng.random(100) > 0.3, rng.random(100) > 0.3)}
+    recs = [{"feature": f, "threshold": t, "precision": rng.random(), "recall": rng.random(),
+             "fpr": rng.random()}
             for f in ("vgg19", "daisy") for t in ("adaptive", "fixed")]
     p2 = plot_mask_quality(recs, tmp_path / "mask.png")
     for p in (p1, p2):

@@ -170,6 +170,7 @@ def test_gt_mask_and_mask_quality_by_hand():
     assert q["fpr"] == pytest.approx(1.0)
     region = np.array([[[False, True, True], [True, True, True]]])
     assert mask_quality(pred, truth, region)["fpr"] != mask_quality(pred, truth, region)["fpr"]  # NaN: no negatives
+    assert np.isnan(mask_quality(np.zeros(3, bool), np.zeros(3, bool))["precision"])  # nothing predicted
 
 
 def test_shape_checks():
