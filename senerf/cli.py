@@ -11,7 +11,8 @@ BENCHMARKS.md has the commands and commits):
 
 * ``--protocol all`` (balanced preset: 1000 steps x 4096 rays, 48 samples): 26.70 dB, SSIM 0.921, 65 s wall.
 * Extreme (views 0, 1, 51), seeds 0/1/2: ``--preset fast`` (600 steps x 1024 rays) 16.60 ± 0.63 dB in
-  31 s of fitting; balanced 16.58 ± 1.18 dB in 63 s; quality (3000 x 2048) 17.46 ± 0.20 dB in 122 s.
+  31 s of fitting; balanced 16.58 ± 1.18 dB in 63 s;
+  ``--steps 3000 --batch-rays 2048`` 17.46 ± 0.20 dB in 122 s.
 """
 
 from __future__ import annotations
@@ -91,12 +92,12 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--downscale", type=_float("--downscale", 1.0),
                    help="image downscale factor (default 1; LLFF: 8, relative to full resolution)")
     t = p.add_argument_group("training")
-    t.add_argument("--preset", choices=("fast", "balanced", "quality"), default="balanced")
+    t.add_argument("--preset", choices=("fast", "balanced"), default="balanced")
     t.add_argument("--steps", type=_positive_int("--steps"), help="training steps per iteration (overrides preset)")
     t.add_argument("--batch-rays", type=_positive_int("--batch-rays"), help="rays per step (overrides preset)")
     t.add_argument("--iterations", type=_positive_int("--iterations", allow_zero=True), default=None,
                    help="self-training iterations after the baseline (0 = baseline only; default: the "
-                        "preset's, 3 for balanced and quality, 1 for fast)")
+                        "preset's: 3 for balanced, 1 for fast)")
     t.add_argument("--device", default="cpu", help="cpu or cuda")
     t.add_argument("--seed", type=_positive_int("--seed", allow_zero=True), default=0)
     m = p.add_argument_group("model overrides (default: chosen from the scene and printed)")

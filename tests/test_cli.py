@@ -109,6 +109,15 @@ def test_help_states_the_selftraining_defaults():
     assert SelfTrainConfig().pseudo_range_step_deg == PSEUDO_RANGE_STEP_DEFAULT
 
 
+def test_preset_names_agree_across_the_cli_the_trainer_and_the_harness():
+    from senerf.bench.specs import PRESETS as BENCH_PRESETS
+    from senerf.cli import build_parser
+    from senerf.train import PRESETS as TRAIN_PRESETS
+
+    (action,) = [a for a in build_parser()._actions if a.dest == "preset"]
+    assert tuple(action.choices) == tuple(TRAIN_PRESETS) == BENCH_PRESETS == ("fast", "balanced")
+
+
 @pytest.mark.parametrize("flags, expected", [
     ([], {}),
     (["--pseudo-range", "15", "--pseudo-range-step", "20", "--empty-opacity", "0"],

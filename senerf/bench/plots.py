@@ -50,7 +50,8 @@ def _err(stat) -> float:
 def plot_frontier(aggs: list[Aggregate], path: str | Path, title: str = "") -> Path:
     """PSNR vs cumulative fit seconds (left) and vs peak memory MiB (right); error bars = std over seeds.
 
-    Per method, a solid line joins the final iterations of the presets (fast -> balanced -> quality); on
+    Per method, a solid line joins the final iterations of the presets (fast -> balanced; results of the removed
+    ``quality`` preset sort after them); on
     the left, a dotted line per preset also traces its self-training iterations (0 = teacher).  Memory is
     a whole-run figure, so the right panel shows final iterations only.
 

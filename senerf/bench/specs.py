@@ -19,7 +19,7 @@ from .protocols import count_train_views, get_method, native_size, parse_protoco
 __all__ = ["PRESETS", "RunSpec", "expand_specs"]
 
 #: Presets understood by ``senerf-fit --preset`` (their values live in the trainer).
-PRESETS: tuple[str, ...] = ("fast", "balanced", "quality")
+PRESETS: tuple[str, ...] = ("fast", "balanced")
 
 
 @dataclass(frozen=True)

@@ -24,9 +24,9 @@ def test_frontier_dry_run_and_fake_run(blender_scene, fake_fit_command, tmp_path
     base = ["--scene", str(blender_scene), "--out", str(out), "--iterations", "2"]
     assert frontier.main([*base, "--dry-run"]) == 0
     fits = [ln for ln in capsys.readouterr().out.splitlines() if ln.startswith("senerf-fit ")]
-    assert len(fits) == 2 * 3                              # baseline and SE-NeRF x 3 presets
+    assert len(fits) == 2 * 2                              # baseline and SE-NeRF x 2 presets
     assert all("--protocol extreme --downscale 8" in f for f in fits)
-    assert {f.split("--preset ")[1].split()[0] for f in fits} == {"fast", "balanced", "quality"}
+    assert {f.split("--preset ")[1].split()[0] for f in fits} == {"fast", "balanced"}
     assert frontier.main([*base, "--fit-command", shlex.join(fake_fit_command), "--workers", "2"]) == 0
     text = (out / "frontier.md").read_text()
     assert "16.65 / 0.75 / 0.24" in text and "python benchmarks/frontier.py" in text

@@ -51,7 +51,7 @@ def test_random_views_seeded_distinct_and_in_range():
 
 def test_expand_grid_keys_unique_and_kinds_matched(blender_scene, llff_scene):
     specs = expand_specs([str(blender_scene), str(llff_scene)],
-                         ["synthetic-extreme3@100", "llff3@504x378"], list(METHODS), ["fast", "quality"],
+                         ["synthetic-extreme3@100", "llff3@504x378"], list(METHODS), ["fast", "balanced"],
                          [0, 1], iterations=2)
     # lego gets only the synthetic protocol, fern only LLFF: 2 scenes x 1 protocol x 7 methods x 2 x 2
     assert len(specs) == 2 * 1 * len(METHODS) * 2 * 2

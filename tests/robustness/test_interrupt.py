@@ -48,21 +48,16 @@ def _env():
     return dict(os.environ, OMP_NUM_THREADS="1", MKL_NUM_THREADS="1")
 
 
-def test_sigkill_mid_fit_then_rerun_resumes_and_matches_uninterrupted(scene24, tmp_path, monkeypatch):
-    ref_out, out = tmp_path / "ref", tmp_path / "run"
-    # the uninterrupted reference (one torch thread, like the resumed run below)
-    ref = run_cli_subprocess(_argv(scene24, ref_out), timeout=300)
-    assert ref.returncode == 0, ref.stderr
-    reference = json.loads((ref_out / "metrics.json").read_text())
-
-    ckpt = out / "checkpoints" / "iter_0_train.pt"
-    proc = subprocess.Popen([sys.executable, "-m", "senerf.cli", *_argv(scene24, out)], env=_env(),
+def _sigkill_fit_when(argv: list[str], path: Path, what: str, timeout: float = 240) -> None:
+    """Run ``senerf-fit argv`` in a subprocess and SIGKILL it the moment ``path`` exists (``what`` names the
+    awaited event in failure messages); asserts the process died of that signal."""
+    proc = subprocess.Popen([sys.executable, "-m", "senerf.cli", *argv], env=_env(),
                             stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
     try:
-        deadline = time.monotonic() + 240
-        while not ckpt.exists():
-            assert proc.poll() is None, f"fit ended before its first checkpoint: {proc.stderr.read()!r}"
-            assert time.monotonic() < deadline, "no checkpoint within 240 s"
+        deadline = time.monotonic() + timeout
+        while not path.exists():
+            assert proc.poll() is None, f"fit ended before {what}: {proc.stderr.read()!r}"
+            assert time.monotonic() < deadline, f"no {what} within {timeout:g} s"
             time.sleep(0.005)
         proc.send_signal(signal.SIGKILL)
         proc.wait(timeout=60)
@@ -72,6 +67,17 @@ def test_sigkill_mid_fit_then_rerun_resumes_and_matches_uninterrupted(scene24, t
             proc.wait()
         proc.stderr.close()
     assert proc.returncode == -signal.SIGKILL
+
+
+def test_sigkill_mid_fit_then_rerun_resumes_and_matches_uninterrupted(scene24, tmp_path, monkeypatch):
+    ref_out, out = tmp_path / "ref", tmp_path / "run"
+    # the uninterrupted reference (one torch thread, like the resumed run below)
+    ref = run_cli_subprocess(_argv(scene24, ref_out), timeout=300)
+    assert ref.returncode == 0, ref.stderr
+    reference = json.loads((ref_out / "metrics.json").read_text())
+
+    ckpt = out / "checkpoints" / "iter_0_train.pt"
+    _sigkill_fit_when(_argv(scene24, out), ckpt, "its first checkpoint")
 
     # what the kill left: parseable JSON, a loadable step-500 checkpoint, no metrics yet
     for js in out.rglob("*.json"):
@@ -119,21 +125,7 @@ def test_sigkill_during_selftraining_resumes_after_the_finished_iteration(scene2
     assert [it["iteration"] for it in reference["iterations"]] == [0, 1]
 
     teacher = out / "checkpoints" / "teacher.pt"
-    proc = subprocess.Popen([sys.executable, "-m", "senerf.cli", *_selftrain_argv(scene24, out)], env=_env(),
-                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    try:
-        deadline = time.monotonic() + 240
-        while not teacher.exists():
-            assert proc.poll() is None, "fit ended before iteration 0 finished"
-            assert time.monotonic() < deadline, "no teacher checkpoint within 240 s"
-            time.sleep(0.005)
-        proc.send_signal(signal.SIGKILL)
-        proc.wait(timeout=60)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait()
-    assert proc.returncode == -signal.SIGKILL
+    _sigkill_fit_when(_selftrain_argv(scene24, out), teacher, "the iteration-0 teacher checkpoint")
     for js in out.rglob("*.json"):
         json.loads(js.read_text())
     assert load_checkpoint(teacher)["iteration"] == 0
