@@ -24,7 +24,8 @@ from scipy import stats
 from .results import latest_ok_lines
 from .summary import Stat, preset_label
 
-__all__ = ["Rung", "preset_ladder", "paired_gain_p_value", "ladder_markdown", "LADDER_ALPHA", "LADDER_MIN_SEEDS"]
+__all__ = ["Rung", "preset_ladder", "paired_gain_p_value", "ladder_markdown", "LADDER_ALPHA", "LADDER_MIN_SEEDS",
+           "Contrast", "method_contrasts", "contrasts_markdown"]
 
 LADDER_ALPHA = 0.05
 LADDER_MIN_SEEDS = 3
@@ -57,11 +58,12 @@ class Rung:
     measurable: bool
 
 
-def paired_gain_p_value(diffs) -> float | None:
-    """One-sided p-value of the paired t-test that the mean of ``diffs`` (shape ``(n,)``) is above 0.
+def paired_gain_p_value(diffs, alternative: str = "greater") -> float | None:
+    """p-value of the paired t-test on ``diffs`` (shape ``(n,)``): one-sided, that their mean is above 0
+    (``alternative="greater"``, the default), or ``"two-sided"``.
 
-    ``None`` for fewer than 2 differences; with zero spread, 0.0 when every difference is positive and
-    1.0 otherwise (the t statistic is infinite or undefined there).
+    ``None`` for fewer than 2 differences; with zero spread (the t statistic is infinite or undefined) 0.0
+    when the mean is on the tested side of 0 and 1.0 otherwise.
 
     Example:
         >>> round(paired_gain_p_value([1.0, 2.0, 3.0]), 4)   # t = 2 / (1 / sqrt 3), 2 dof
@@ -71,8 +73,9 @@ def paired_gain_p_value(diffs) -> float | None:
     if d.size < 2:
         return None
     if float(d.std(ddof=1)) == 0.0:
-        return 0.0 if float(d.mean()) > 0 else 1.0
-    return float(stats.ttest_1samp(d, 0.0, alternative="greater").pvalue)
+        mean = float(d.mean())
+        return 0.0 if (mean > 0 if alternative == "greater" else mean != 0) else 1.0
+    return float(stats.ttest_1samp(d, 0.0, alternative=alternative).pvalue)
 
 
 def _final_lines(records: list[dict]) -> dict[tuple, dict[int, dict]]:
@@ -138,4 +141,59 @@ def ladder_markdown(rungs: list[Rung], alpha: float = LADDER_ALPHA, min_seeds: i
         verdict = "yes" if r.measurable else ("no" if len(r.seeds) >= min_seeds else "too few seeds")
         out.append(f"| {r.scene} | {r.method} | {r.slower} | {r.faster} | {len(r.seeds)} | "
                    f"{r.slower_seconds:.0f} / {r.faster_seconds:.0f} | {r.gain.text(2)} | {p} | {verdict} |")
+    return out
+
+
+@dataclass(frozen=True)
+class Contrast:
+    """A method against the reference method at the same preset and K, paired by seed.
+
+    Attributes:
+        scene, protocol, rung: the group (rung label ``"fast K=1"``).
+        method, reference: the compared method and the reference (``"senerf"``).
+        seeds: the seeds both have.
+        diff: stats of the per-seed PSNR differences ``method - reference`` (dB).
+        p_value: two-sided paired t-test p-value (``None`` with fewer than 2 pairs).
+    """
+
+    scene: str
+    protocol: str
+    rung: str
+    method: str
+    reference: str
+    seeds: tuple[int, ...]
+    diff: Stat
+    p_value: float | None
+
+
+def method_contrasts(records: list[dict], reference: str = "senerf") -> list[Contrast]:
+    """Every method that shares a (scene, protocol, preset, K) rung with ``reference`` (ablations, analyses),
+    paired by seed; the baseline (K = 0) never shares a rung with a self-training method.
+
+    Returns:
+        Contrasts sorted by (scene, protocol, rung, method).
+    """
+    finals = _final_lines(records)
+    out = []
+    for (scene, protocol, method, rung), runs in sorted(finals.items()):
+        ref = finals.get((scene, protocol, reference, rung))
+        if method == reference or ref is None:
+            continue
+        seeds = tuple(sorted(set(runs) & set(ref)))
+        diffs = [runs[s]["psnr"] - ref[s]["psnr"] for s in seeds]
+        out.append(Contrast(scene, protocol, rung, method, reference, seeds, Stat.of(diffs),
+                            paired_gain_p_value(diffs, alternative="two-sided")))
+    return out
+
+
+def contrasts_markdown(contrasts: list[Contrast]) -> list[str]:
+    """Markdown lines: one row per contrast (empty list when there are none)."""
+    if not contrasts:
+        return []
+    out = ["", "Ablations and analyses against SE-NeRF at the same preset, paired over seeds: difference = "
+           "method - reference, mean ± std; two-sided paired t-test.", "",
+           "| scene | rung | method | reference | pairs | PSNR difference | p |", "|" + "---|" * 7]
+    for c in contrasts:
+        p = "-" if c.p_value is None else f"{c.p_value:.3f}"
+        out.append(f"| {c.scene} | {c.rung} | {c.method} | {c.reference} | {len(c.seeds)} | {c.diff.text(2)} | {p} |")
     return out

@@ -11,7 +11,7 @@ import datetime as _dt
 import shlex
 from dataclasses import dataclass
 
-from .ladder import ladder_markdown, preset_ladder
+from .ladder import contrasts_markdown, ladder_markdown, method_contrasts, preset_ladder
 from .protocols import parse_protocol
 from .results import latest_ok_lines
 from .summary import Aggregate, aggregate, final_iterations
@@ -115,6 +115,7 @@ def _protocol_block(protocol: str, lines: list[dict], aggs: list[Aggregate]) -> 
                    f"{a.peak_memory_mib.text(0)} | {paper or '-'} |")
     out += _mean_rows(proto.family, aggs)
     out += ladder_markdown(preset_ladder(lines))
+    out += contrasts_markdown(method_contrasts(lines))
     selftrain = [a for a in aggs if a.iterations > 0]
     if selftrain:
         out += ["", "Per self-training iteration (0 = teacher):", "",

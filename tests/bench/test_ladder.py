@@ -6,7 +6,8 @@ import math
 
 import pytest
 
-from senerf.bench.ladder import ladder_markdown, paired_gain_p_value, preset_ladder
+from senerf.bench.ladder import (contrasts_markdown, ladder_markdown, method_contrasts, paired_gain_p_value,
+                                 preset_ladder)
 
 
 def _line(seed, preset, psnr, seconds, k=1, iteration=None, method="senerf", status="ok"):
@@ -33,6 +34,8 @@ def test_p_value_edge_cases():
     assert paired_gain_p_value([0.4]) is None
     assert paired_gain_p_value([0.5, 0.5, 0.5]) == 0.0
     assert paired_gain_p_value([0.0, 0.0]) == 1.0
+    assert paired_gain_p_value([-0.5, -0.5], alternative="two-sided") == 0.0
+    assert paired_gain_p_value([0.0, 0.0], alternative="two-sided") == 1.0
 
 
 def test_ladder_pairs_common_seeds_and_orders_by_seconds():
@@ -64,3 +67,23 @@ def test_too_few_seeds_is_never_measurable():
     assert rung.p_value is not None and rung.p_value < 0.05 and not rung.measurable
     assert "too few seeds" in "\n".join(ladder_markdown([rung]))
     assert preset_ladder([_line(0, "fast", 10.0, 10)]) == [] and ladder_markdown([]) == []
+
+
+def _t_two_sided_2dof(t: float) -> float:
+    return 2 * _t_sf_2dof(abs(t))
+
+
+def test_method_contrasts_pair_ablations_with_the_reference():
+    records = []
+    for s, (ref, abl) in enumerate([(17.0, 16.0), (17.5, 15.5), (16.0, 13.0)]):
+        records += [_line(s, "fast", ref, 80), _line(s, "fast", abl, 80, method="senerf-no-empty")]
+    records += [_line(0, "fast", 15.0, 30, k=0, method="baseline")]          # K = 0: no rung in common
+    records += [_line(0, "balanced", 18.0, 300, k=3, method="senerf-oracle")]  # no reference at balanced
+    (c,) = method_contrasts(records)
+    assert (c.method, c.reference, c.rung, c.seeds) == ("senerf-no-empty", "senerf", "fast K=1", (0, 1, 2))
+    # diffs -1, -2, -3: t = -2 sqrt(3), two-sided with 2 dof
+    assert c.diff.mean == pytest.approx(-2.0) and c.diff.std == pytest.approx(1.0)
+    assert c.p_value == pytest.approx(_t_two_sided_2dof(2 * math.sqrt(3)), rel=1e-9)
+    md = "\n".join(contrasts_markdown([c]))
+    assert "| lego | fast K=1 | senerf-no-empty | senerf | 3 | -2.00 ± 1.00 | 0.074 |" in md
+    assert contrasts_markdown([]) == []

@@ -124,7 +124,7 @@ def make_pseudo(p=1, h=6, w=7, reliable=None, n_near=0.0, n_far=2.0) -> PseudoRa
     nb, has = prior_weights(reliable)
     prior = (~reliable) & has
     n = p * h * w
-    f32 = lambda a: torch.as_tensor(np.ascontiguousarray(a), dtype=torch.float32)  # noqa: E731
+    f32 = lambda a: torch.from_numpy(np.array(a, dtype=np.float32))  # a writable copy  # noqa: E731
     return PseudoRays(f32(o), f32(d), torch.full((n,), n_near), torch.full((n,), n_far), (p, h, w),
                       f32(reliable.reshape(-1)), f32(prior.reshape(-1)), f32(nb.reshape(n, 8)))
 
