@@ -183,7 +183,7 @@ def method_contrasts(records: list[dict], reference: str = "senerf") -> list[Con
         diffs = [runs[s]["psnr"] - ref[s]["psnr"] for s in seeds]
         out.append(Contrast(scene, protocol, rung, method, reference, seeds, Stat.of(diffs),
                             paired_gain_p_value(diffs, alternative="two-sided")))
-    return out
+    return sorted(out, key=lambda c: (c.scene, c.protocol, c.rung, c.method))
 
 
 def contrasts_markdown(contrasts: list[Contrast]) -> list[str]:
