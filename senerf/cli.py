@@ -142,6 +142,12 @@ PSEUDO_RANGE_DEFAULT = 10.0
 PSEUDO_RANGE_STEP_DEFAULT = 5.0
 
 
+def _selftrain_flags(args) -> dict:
+    """The SelfTrainConfig fields every self-training run sets from the command line."""
+    return dict(features=args.features, threshold=args.threshold, density_distill=not args.no_density_distill,
+                prior=not args.no_prior, reliability=args.reliability)
+
+
 def _selftrain_overrides(args) -> dict:
     """SelfTrainConfig fields given on the command line (absent ones keep the config's defaults, and stay
     out of the resume fingerprint so runs made before a flag existed still resume)."""
@@ -279,9 +285,8 @@ def _run(args, argv) -> int:
         if selftrain is None:
             print(f"{PROG}: self-training is not available ({why}); running the baseline only", file=sys.stderr)
         else:
-            st_cfg = selftrain[0](iterations=iterations, features=args.features, threshold=args.threshold,
-                                  density_distill=not args.no_density_distill, prior=not args.no_prior,
-                                  reliability=args.reliability, seed=args.seed, **_selftrain_overrides(args))
+            st_cfg = selftrain[0](iterations=iterations, seed=args.seed, **_selftrain_flags(args),
+                                  **_selftrain_overrides(args))
 
     out = args.out if args.out is not None else Path("runs") / f"{scene.name}-{protocol}"
     config = dict(scene_dir=str(scene_dir.resolve()), format=fmt, downscale=downscale, protocol=protocol,
@@ -292,11 +297,9 @@ def _run(args, argv) -> int:
     # baseline can be extended by self-training with the same settings)
     identity = {k: v for k, v in config.items() if k != "selftrain"}
     identity["train"] = {k: v for k, v in identity["train"].items() if k != "device"}
-    identity["selftrain_flags"] = dict(features=args.features, threshold=args.threshold,
-                                       density_distill=not args.no_density_distill, prior=not args.no_prior,
-                                       reliability=args.reliability, empty_opacity=args.empty_opacity,
-                                       **{k: v for k, v in _selftrain_overrides(args).items()
-                                          if k != "empty_opacity"})
+    # empty_opacity is always part of the fingerprint (None when not given), as before the other overrides
+    identity["selftrain_flags"] = {**_selftrain_flags(args), "empty_opacity": args.empty_opacity,
+                                   **_selftrain_overrides(args)}
     _prepare_out(out, identity, args.overwrite)
     print(f"{PROG}: writing to {out}")
 

@@ -32,7 +32,7 @@ from .executors import make_executor
 from .plots import line_view_angles, plot_frontier, plot_iterations, plot_psnr_vs_angle
 from .protocols import METHODS, parse_protocol
 from .report import make_report, mask_quality_section
-from .results import latest_ok_lines, load_results
+from .results import final_ok_lines, load_results
 from .runner import dry_run_lines, run_benchmark
 from .specs import PRESETS, expand_specs
 from .summary import aggregate, final_iterations, format_table, preset_label
@@ -241,8 +241,8 @@ def _cmd_angles(args: argparse.Namespace) -> int:
     scene = load_scene(args.scene, downscale=proto.downscale)
     name = Path(args.scene).name
     # baselines at iteration 0, self-training runs at their last iteration (their iteration 0 is a baseline)
-    lines = [r for r in latest_ok_lines(_load(args.results)) if r["scene"] == name and r["protocol"] == proto.name
-             and r["iteration"] == r["iterations"] and (args.preset is None or r.get("preset") == args.preset)]
+    lines = [r for r in final_ok_lines(_load(args.results)) if r["scene"] == name and r["protocol"] == proto.name
+             and (args.preset is None or r.get("preset") == args.preset)]
     if not lines:
         raise InputError(f"no finished runs of {name} under {proto.name}", file=args.results)
     center = (0.0, 0.0, 0.0) if proto.kind == "object" else None

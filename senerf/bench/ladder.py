@@ -21,7 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import stats
 
-from .results import latest_ok_lines
+from .results import final_ok_lines
 from .summary import Stat, preset_label
 
 __all__ = ["Rung", "preset_ladder", "paired_gain_p_value", "ladder_markdown", "LADDER_ALPHA", "LADDER_MIN_SEEDS",
@@ -81,12 +81,8 @@ def paired_gain_p_value(diffs, alternative: str = "greater") -> float | None:
 def _final_lines(records: list[dict]) -> dict[tuple, dict[int, dict]]:
     """(scene, protocol, method, rung label) -> seed -> the run's last-iteration line."""
     finals: dict[tuple, dict[int, dict]] = defaultdict(dict)
-    for r in latest_ok_lines(records):
-        k = int(r.get("iterations", 0))
-        key = (r["scene"], r["protocol"], r["method"], f"{preset_label(r)} K={k}")
-        best = finals[key].get(r["seed"])
-        if best is None or r["iteration"] > best["iteration"]:
-            finals[key][r["seed"]] = r
+    for r in final_ok_lines(records):
+        finals[(r["scene"], r["protocol"], r["method"], f"{preset_label(r)} K={r['iteration']}")][r["seed"]] = r
     return finals
 
 
@@ -96,7 +92,7 @@ def preset_ladder(records: list[dict], alpha: float = LADDER_ALPHA,
 
     Args:
         records: results-file lines (:func:`senerf.bench.results.load_results`); failed runs and earlier
-            attempts are left out (:func:`senerf.bench.results.latest_ok_lines`).
+            attempts are left out (:func:`senerf.bench.results.final_ok_lines`).
         alpha: significance level of the one-sided paired t-test.
         min_seeds: fewest paired seeds for a verdict of "measurable".
 

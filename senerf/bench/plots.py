@@ -22,12 +22,11 @@ from matplotlib.figure import Figure
 
 from senerf.geometry import nearest_view_angles  # re-exported: the bench's angle plots use it
 
-from .summary import Aggregate
+from .summary import PRESET_ORDER, Aggregate
 
 __all__ = ["plot_frontier", "plot_iterations", "nearest_view_angles", "line_view_angles", "plot_psnr_vs_angle",
            "plot_mask_quality"]
 
-_PRESET_ORDER = {"fast": 0, "balanced": 1, "quality": 2}
 
 
 def _save(fig: Figure, path: str | Path) -> Path:
@@ -71,7 +70,7 @@ def plot_frontier(aggs: list[Aggregate], path: str | Path, title: str = "") -> P
         if len(group) > 1:
             ax_t.plot([a.seconds.mean for a in group], [a.psnr.mean for a in group], ":", color="0.5", lw=1)
     for i, (key, finals) in enumerate(sorted(by_method.items())):
-        finals.sort(key=lambda a: _PRESET_ORDER.get(a.preset, 9))
+        finals.sort(key=lambda a: PRESET_ORDER.get(a.preset, 9))
         label = " ".join(key[2:]) if len({k[:2] for k in by_method}) == 1 else " ".join(key)
         ys, yerr = [a.psnr.mean for a in finals], [_err(a.psnr) for a in finals]
         for ax, stat in ((ax_t, "seconds"), (ax_m, "peak_memory_mib")):

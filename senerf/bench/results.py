@@ -38,7 +38,7 @@ from pathlib import Path
 from .specs import RunSpec
 
 __all__ = ["SCHEMA_VERSION", "REQUIRED_OK_FIELDS", "result_lines", "validate_line", "append_lines",
-           "load_results", "finished_keys", "latest_ok_lines"]
+           "load_results", "finished_keys", "latest_ok_lines", "final_ok_lines"]
 
 SCHEMA_VERSION = 1
 
@@ -179,3 +179,9 @@ def latest_ok_lines(records: list[dict]) -> list[dict]:
         if r.get("status") == "ok":
             last_attempt[r["run_key"]] = r.get("attempt", "")
     return [r for r in records if r.get("status") == "ok" and r.get("attempt", "") == last_attempt[r["run_key"]]]
+
+
+def final_ok_lines(records: list[dict]) -> list[dict]:
+    """:func:`latest_ok_lines` at each run's last iteration (``iteration == iterations``): the result a user
+    gets (a baseline's iteration 0; a self-training run's iteration K, not its teacher)."""
+    return [r for r in latest_ok_lines(records) if r["iteration"] == int(r.get("iterations", 0))]

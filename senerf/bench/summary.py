@@ -14,10 +14,12 @@ import numpy as np
 
 from .results import latest_ok_lines
 
-__all__ = ["Stat", "Aggregate", "aggregate", "final_iterations", "format_table", "preset_label", "GROUP_FIELDS"]
+__all__ = ["Stat", "Aggregate", "aggregate", "final_iterations", "format_table", "preset_label", "GROUP_FIELDS",
+           "PRESET_ORDER"]
 
 GROUP_FIELDS = ("scene", "protocol", "method", "preset", "iterations", "iteration")
-_PRESET_ORDER = {"fast": 0, "balanced": 1, "quality": 2}
+#: display order of preset names ("quality" sorts results of the removed preset after the current ones)
+PRESET_ORDER = {"fast": 0, "balanced": 1, "quality": 2}
 _METRICS = ("psnr", "ssim", "lpips", "avg", "seconds_cumulative", "peak_memory_mib")
 
 
@@ -96,7 +98,7 @@ def aggregate(records: list[dict]) -> list[Aggregate]:
         groups[(r["scene"], r["protocol"], r["method"], preset_label(r), int(r.get("iterations", 0)),
                 r["iteration"])].append(r)
     out = []
-    for key in sorted(groups, key=lambda k: (k[0], k[1], k[2], _PRESET_ORDER.get(k[3].split("+")[0], 9), k[3],
+    for key in sorted(groups, key=lambda k: (k[0], k[1], k[2], PRESET_ORDER.get(k[3].split("+")[0], 9), k[3],
                                              k[4], k[5])):
         rows = groups[key]
         stats = {m: Stat.of([r.get(m) for r in rows]) for m in _METRICS}

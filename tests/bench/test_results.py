@@ -6,7 +6,7 @@ import json
 
 import pytest
 
-from senerf.bench.results import (REQUIRED_OK_FIELDS, append_lines, finished_keys, latest_ok_lines,
+from senerf.bench.results import (REQUIRED_OK_FIELDS, append_lines, final_ok_lines, finished_keys, latest_ok_lines,
                                   load_results, result_lines, validate_line)
 from senerf.bench.specs import RunSpec
 
@@ -78,3 +78,6 @@ def test_latest_attempt_wins():
     failed = result_lines(SPEC, {"status": "failed", "error": "x"}, "c", [])
     kept = latest_ok_lines(old + new + failed)
     assert [ln["psnr"] for ln in kept] == [ln["psnr"] for ln in new]
+    # the result a user gets: the last attempt's line at the run's last iteration (K = 2), not its teacher
+    (final,) = final_ok_lines(old + new + failed)
+    assert final["iteration"] == final["iterations"] == 2 and final["psnr"] == new[-1]["psnr"]
