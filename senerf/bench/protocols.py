@@ -192,6 +192,12 @@ METHODS: dict[str, Method] = {m.name: m for m in (
            "no empty-space distillation (the paper's letter: background pseudo pixels unused)"),
     Method("senerf-range-step20", ("--pseudo-range-step", "20"), True,
            "pseudo-view range widened by 20 degrees per iteration (10, 30, 50) instead of 5 (10, 15, 20)"),
+    Method("senerf-student-grid", ("--student-grid", "student"), True,
+           "the student's pseudo rays marched through its own occupancy grid (default: the teacher's)"),
+    Method("senerf-no-grid", ("--student-grid", "none"), True,
+           "the student's pseudo rays evaluated at every sample (no occupancy grid)"),
+    Method("senerf-batch-empty", ("--batch-empty", "512"), True,
+           "512 empty-space rays per step drawn apart from 512 reliable surface rays (default: one pool)"),
     Method("senerf-oracle", ("--reliability", "oracle"), True,
            "analysis: held-out dataset views as pseudo views, masks from ground-truth colour (paper Fig. 1)"),
 )}

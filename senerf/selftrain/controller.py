@@ -72,8 +72,8 @@ class SelfTrainConfig:
         beta: the unified weighting's sigmoid slope.
         opacity_threshold: teacher opacity below which a pixel is background (ignored).
         occlusion_rel_tol: relative depth slack of the occlusion test.
-        batch_reliable, batch_prior, lambda_color, lambda_geometry, lambda_prior, geometry_target,
-        density_distill, prior, kernel_size, kernel_std, skip_empty: see :class:`DistillConfig`.
+        batch_reliable, batch_prior, batch_empty, lambda_color, lambda_geometry, lambda_prior, geometry_target,
+        density_distill, prior, kernel_size, kernel_std, student_grid: see :class:`DistillConfig`.
         seed: seeds pseudo-view sampling (fields are initialised from ``TrainConfig.seed``).
         reliability: 'features' (the method: feature consistency across views) or 'oracle' (the paper's
             Figure 1 toy experiment, an analysis that needs ground truth: pseudo views are held-out dataset
@@ -105,6 +105,7 @@ class SelfTrainConfig:
     occlusion_rel_tol: float = 0.05
     batch_reliable: int = 512
     batch_prior: int = 128
+    batch_empty: int = 0
     lambda_color: float = 1.0
     lambda_geometry: float = 1.0
     lambda_prior: float = 0.005
@@ -113,7 +114,7 @@ class SelfTrainConfig:
     prior: bool = True
     kernel_size: int = 3
     kernel_std: float = 1.0
-    skip_empty: bool = True
+    student_grid: str = "teacher"
     seed: int = 0
     reliability: str = "features"
     oracle_max_error: float = 0.1
@@ -335,13 +336,17 @@ def oracle_reliability(teacher, occupancy, model, scene, pseudo_idx, cfg: SelfTr
                         prior=prior, neighbour=neighbour)
 
 
-def _pseudo_rays(labels: PseudoLabels, intrinsics, model, device, q: int) -> PseudoRays:
+def _pseudo_rays(labels: PseudoLabels, intrinsics, model, device, q: int, empty_opacity: float = 0.0
+                 ) -> PseudoRays:
     rays = camera_rays(intrinsics, labels.c2w, model, device)
     t = lambda a: torch.as_tensor(np.ascontiguousarray(a), dtype=torch.float32, device=device)  # noqa: E731
     n = labels.weights.size
+    empty = None
+    if empty_opacity > 0:
+        empty = torch.as_tensor(((labels.acc < empty_opacity) & (labels.weights > 0)).reshape(-1), device=device)
     return PseudoRays(rays["origins"], rays["dirs"], rays["near"], rays["far"], tuple(labels.weights.shape),
                       t(labels.weights.reshape(-1)), t(labels.prior.reshape(-1)),
-                      t(labels.neighbour.reshape(n, -1)), q=q)
+                      t(labels.neighbour.reshape(n, -1)), q=q, empty=empty)
 
 
 def _write_pseudo_pngs(folder: Path, labels: PseudoLabels) -> None:
@@ -478,7 +483,7 @@ def run_selftraining(scene, train_idx, test_idx, model, train_cfg, cfg: SelfTrai
             echo(f"selftrain: iteration {k}: {pseudo_c2w.shape[0]} pseudo views within "
                  f"{cfg.pseudo_range(k):g} deg, tau {tau_txt}, reliable {100 * reliable_fraction:.1f} % of "
                  f"foreground, prior on {100 * float(labels.prior[labels.foreground].mean()):.1f} %")
-            pseudo = _pseudo_rays(labels, scene.intrinsics, model, device, cfg.kernel_size)
+            pseudo = _pseudo_rays(labels, scene.intrinsics, model, device, cfg.kernel_size, cfg.empty_opacity)
             extra = DistillationLoss(teacher, pseudo, cfg.distill_config(), model.n_samples,
                                      model.train_background, teacher_occupancy=occupancy)
         result = train_field(field, rays, tcfg, extra_loss=extra, checkpoint=ckpt_dir / f"iter_{k}_train.pt",

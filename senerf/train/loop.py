@@ -25,8 +25,9 @@ from .rays import RayBatchSource
 
 __all__ = ["train_field", "TrainResult", "lr_factor", "make_occupancy", "background_color", "ExtraLoss"]
 
-#: ``extra_loss(field, step, generator) -> (scalar loss tensor, {name: float})``
-ExtraLoss = Callable[[torch.nn.Module, int, torch.Generator], "tuple[torch.Tensor, dict]"]
+#: ``extra_loss(field, step, generator, occupancy) -> (scalar loss tensor, {name: float})``; ``occupancy`` is
+#: the grid the step renders the real rays with (None before ``occupancy_warmup`` or without a grid)
+ExtraLoss = Callable[[torch.nn.Module, int, torch.Generator, object], "tuple[torch.Tensor, dict]"]
 
 
 @dataclass
@@ -123,8 +124,9 @@ def train_field(field: torch.nn.Module, rays: RayBatchSource, cfg: TrainConfig,
         rays: the training rays (on ``cfg.device``); ``rays.model`` gives the render settings
             (samples, background policy, occupancy grid).
         cfg: optimisation settings.
-        extra_loss: ``extra_loss(field, step, generator) -> (scalar tensor, {name: float})`` added to the
-            loss every step (self-training's distillation losses); must draw randomness only from
+        extra_loss: ``extra_loss(field, step, generator, occupancy) -> (scalar tensor, {name: float})``
+            added to the loss every step (self-training's distillation losses); ``occupancy`` is the grid
+            this step renders with (None before ``cfg.occupancy_warmup``); must draw randomness only from
             ``generator``.
         checkpoint: a ``.pt`` path: resumed from when it exists, written atomically every
             ``cfg.checkpoint_every`` steps and at the end.
@@ -188,7 +190,7 @@ def train_field(field: torch.nn.Module, rays: RayBatchSource, cfg: TrainConfig,
             loss = loss + cfg.tv_weight * field.regularizer()
         logs: dict = {}
         if extra_loss is not None:
-            extra, logs = extra_loss(field, step, generator)
+            extra, logs = extra_loss(field, step, generator, use_grid)
             loss = loss + extra
         optimizer.zero_grad(set_to_none=True)
         loss.backward()

@@ -218,3 +218,7 @@ def test_empty_space_pixels_become_reliable(tiny_scene, tiny_teacher):
     assert np.all(out[0.0].weights[~out[0.0].foreground] == 0.0)
     with pytest.raises(InputError):
         SelfTrainConfig(empty_opacity=1.5)
+    # the rays handed to the distillation mark exactly those pixels as the empty pool
+    rays = controller_mod._pseudo_rays(out[0.6], scene.intrinsics, model, "cpu", 3, empty_opacity=0.6)
+    np.testing.assert_array_equal(rays.empty.numpy(), low.reshape(-1))
+    assert controller_mod._pseudo_rays(out[0.0], scene.intrinsics, model, "cpu", 3).empty is None

@@ -210,7 +210,14 @@ class HalfGrid:
         return xyz[:, 2] < 1.0
 
 
-def test_skip_empty_marches_the_student_through_the_teacher_grid():
+class FarHalfGrid:
+    """The other half: only points with z > 1 are occupied."""
+
+    def is_occupied(self, xyz):
+        return xyz[:, 2] > 1.0
+
+
+def test_student_grid_chooses_where_the_student_is_marched():
     s = 16
     pseudo = make_pseudo()
     teacher, student = SpyField(), SpyField()
@@ -220,6 +227,67 @@ def test_skip_empty_marches_the_student_through_the_teacher_grid():
     assert all(bool((c[:, 2] < 1.0).all()) for c in teacher.calls + student.calls)
     assert student.calls[0].shape[0] < (8 + 4) * s  # empty samples were skipped
     student2 = SpyField()
-    DistillationLoss(SpyField(), pseudo, DistillConfig(batch_reliable=8, batch_prior=4, skip_empty=False), s,
+    DistillationLoss(SpyField(), pseudo, DistillConfig(batch_reliable=8, batch_prior=4, student_grid="none"), s,
                      teacher_occupancy=HalfGrid())(student2, 0, torch.Generator().manual_seed(3))
     assert student2.calls[0].shape[0] == (8 + 4) * s
+    # 'student': the grid the trainer hands over (here: z > 1 occupied), the teacher keeps its own
+    teacher3, student3 = SpyField(), SpyField()
+    DistillationLoss(teacher3, pseudo, DistillConfig(batch_reliable=8, batch_prior=4, student_grid="student"), s,
+                     teacher_occupancy=HalfGrid())(student3, 0, torch.Generator().manual_seed(3),
+                                                   occupancy=FarHalfGrid())
+    assert bool((student3.calls[0][:, 2] > 1.0).all()) and bool((teacher3.calls[0][:, 2] < 1.0).all())
+    student4 = SpyField()                                   # no grid yet (trainer warm-up): every sample
+    DistillationLoss(SpyField(), pseudo, DistillConfig(batch_reliable=8, batch_prior=4, student_grid="student"), s,
+                     teacher_occupancy=HalfGrid())(student4, 0, torch.Generator().manual_seed(3))
+    assert student4.calls[0].shape[0] == (8 + 4) * s
+    with pytest.raises(ValueError, match="student_grid"):
+        DistillConfig(student_grid="own")
+
+
+def with_empty(pseudo: PseudoRays, empty: np.ndarray) -> PseudoRays:
+    """The same rays with an ``empty`` mask (a subset of the reliable rays)."""
+    return PseudoRays(pseudo.origins, pseudo.dirs, pseudo.near, pseudo.far, pseudo.shape, pseudo.reliable,
+                      pseudo.prior, pseudo.neighbour, q=pseudo.q, empty=torch.from_numpy(empty.reshape(-1)))
+
+
+def test_surface_and_empty_pools_are_disjoint_and_cover_the_reliable_rays():
+    base = make_pseudo()                                   # reliable: columns 0..2 of a 6 x 7 image
+    empty = np.zeros((1, 6, 7), bool)
+    empty[:, :, 0] = True                                  # column 0 is empty space
+    pseudo = with_empty(base, empty)
+    gen = torch.Generator().manual_seed(0)
+    w = 7
+    surface = pseudo.sample_surface(400, gen) % w
+    hollow = pseudo.sample_empty(400, gen) % w
+    assert set(surface.tolist()) == {1, 2} and set(hollow.tolist()) == {0}
+    with pytest.raises(ValueError, match="reliable"):
+        bad = np.zeros((1, 6, 7), bool)
+        bad[:, :, 6] = True                                # column 6 is not reliable
+        with_empty(base, bad)
+    with pytest.raises(ValueError, match="bool"):
+        PseudoRays(base.origins, base.dirs, base.near, base.far, base.shape, base.reliable, base.prior,
+                   base.neighbour, empty=torch.zeros(base.origins.shape[0]))
+    with pytest.raises(ValueError, match="no 'empty'"):
+        base.sample_empty(4, gen)
+
+
+def test_batch_empty_draws_surface_and_empty_rays_on_top_of_each_other():
+    s = 8
+    empty = np.zeros((1, 6, 7), bool)
+    empty[:, :, 0] = True
+    pseudo = with_empty(make_pseudo(), empty)
+    teacher = SpyField()
+    cfg = DistillConfig(batch_reliable=6, batch_empty=10, prior=False)
+    _, logs = DistillationLoss(teacher, pseudo, cfg, n_samples=s, background="white")(
+        SpyField(), 0, torch.Generator().manual_seed(4))
+    assert logs["n_reliable"] == 16
+    columns = torch.round(teacher.calls[0].reshape(-1, s, 3)[:, 0, 0] * 10).long()
+    assert int((columns == 0).sum()) == 10 and int(((columns == 1) | (columns == 2)).sum()) == 6
+    # 0 keeps the shared pool (and its random stream): the same draws as before the option existed
+    a, b = SpyField(), SpyField()
+    DistillationLoss(a, pseudo, DistillConfig(prior=False), s)(SpyField(), 0, torch.Generator().manual_seed(5))
+    DistillationLoss(b, make_pseudo(), DistillConfig(prior=False), s)(SpyField(), 0,
+                                                                       torch.Generator().manual_seed(5))
+    assert torch.equal(a.calls[0], b.calls[0])
+    with pytest.raises(ValueError):
+        DistillConfig(batch_empty=-1)

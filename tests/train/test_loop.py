@@ -31,7 +31,7 @@ def _cfg(**kw) -> TrainConfig:
     return TrainConfig(**{**base, **kw})
 
 
-def _zero_loss(field, step, generator):
+def _zero_loss(field, step, generator, occupancy):
     return torch.zeros(()), {}
 
 
@@ -70,10 +70,10 @@ def test_resume_reproduces_uninterrupted_run(tmp_path):
     full = train_field(build_field(MODEL, seed=1), rays, cfg, extra_loss=_zero_loss,
                        checkpoint=tmp_path / "a.pt", progress=False)
 
-    def crash_at_8(field, step, generator):
+    def crash_at_8(field, step, generator, occupancy):
         if step == 8:
             raise _Crash()
-        return _zero_loss(field, step, generator)
+        return _zero_loss(field, step, generator, occupancy)
 
     with pytest.raises(_Crash):
         train_field(build_field(MODEL, seed=1), rays, cfg, extra_loss=crash_at_8, checkpoint=tmp_path / "b.pt",
@@ -104,13 +104,16 @@ def test_extra_loss_is_added_and_logged():
     rays = _rays()
     calls = []
 
-    def extra(field, step, generator):
-        calls.append(step)
+    def extra(field, step, generator, occupancy):
+        calls.append((step, occupancy))
         return 0.0 * field.regularizer() + 1.0, {"distill": 1.0}
 
     res = train_field(build_field(MODEL, seed=0), rays, _cfg(steps=6), extra_loss=extra, progress=False,
                       log_every=3)
-    assert calls == list(range(6))
+    assert [step for step, _ in calls] == list(range(6))
+    # the hook sees the grid the step renders with: none before occupancy_warmup (2), the trainer's after
+    assert res.occupancy is not None
+    assert all((grid is None) if step < 2 else (grid is res.occupancy) for step, grid in calls)
     assert res.history[-1]["distill"] == 1.0 and res.history[-1]["loss"] > 1.0
 
 
