@@ -143,6 +143,9 @@ class SelfTrainConfig:
             raise InputError("pseudo ranges must be >= 0 degrees", field="pseudo_range_deg")
         if not 0 < self.opacity_threshold <= 1:
             raise InputError(f"must be in (0, 1], got {self.opacity_threshold!r}", field="opacity_threshold")
+        if self.batch_empty > 0 and self.empty_opacity <= 0:
+            raise InputError("batch_empty > 0 draws empty-space rays apart, which needs empty_opacity > 0",
+                             field="batch_empty")
         try:
             self.distill_config()
         except ValueError as exc:

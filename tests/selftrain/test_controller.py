@@ -222,3 +222,5 @@ def test_empty_space_pixels_become_reliable(tiny_scene, tiny_teacher):
     rays = controller_mod._pseudo_rays(out[0.6], scene.intrinsics, model, "cpu", 3, empty_opacity=0.6)
     np.testing.assert_array_equal(rays.empty.numpy(), low.reshape(-1))
     assert controller_mod._pseudo_rays(out[0.0], scene.intrinsics, model, "cpu", 3).empty is None
+    with pytest.raises(InputError, match="empty_opacity"):
+        SelfTrainConfig(batch_empty=256, empty_opacity=0.0)
