@@ -134,6 +134,16 @@ def line_view_angles(line: dict, c2w: np.ndarray, center: np.ndarray | tuple | N
     return angles, np.asarray(per_view, np.float64)
 
 
+def _distinct_colours(n: int) -> list:
+    """``n`` colours no two alike: matplotlib's 10-colour cycle, or 'tab20' (up to 20) beyond 10 series."""
+    from matplotlib import colormaps
+
+    if n <= 10:
+        return [f"C{i}" for i in range(n)]
+    cmap = colormaps["tab20"]
+    return [cmap(i % 20) for i in range(n)]
+
+
 def plot_psnr_vs_angle(angles_deg: dict[str, np.ndarray], psnr: dict[str, np.ndarray], path: str | Path,
                        title: str = "", bin_deg: float = 15.0) -> Path:
     """Per-view PSNR vs angle to the nearest training view: faint points, and per label a line through the
@@ -146,11 +156,12 @@ def plot_psnr_vs_angle(angles_deg: dict[str, np.ndarray], psnr: dict[str, np.nda
     """
     fig = Figure(figsize=(6.4, 4.4))
     ax = fig.subplots()
-    for label in angles_deg:
+    colours = _distinct_colours(len(angles_deg))
+    for label, colour in zip(angles_deg, colours):
         a, p = np.asarray(angles_deg[label], np.float64), np.asarray(psnr[label], np.float64)
         if a.shape != p.shape:
             raise ValueError(f"{label}: angles {a.shape} and psnr {p.shape} differ")
-        dots = ax.scatter(a, p, s=6, alpha=0.25)
+        dots = ax.scatter(a, p, s=6, alpha=0.25, color=colour)
         edges = np.arange(0.0, a.max() + bin_deg, bin_deg) if a.size else np.zeros(1)
         which = np.digitize(a, edges) - 1
         centres, means = [], []

@@ -40,6 +40,16 @@ def test_analysis_plots_write_pngs(tmp_path):
         plot_psnr_vs_angle({"x": a}, {"x": a[:3]}, tmp_path / "bad.png")
 
 
+@pytest.mark.parametrize("n", [1, 10, 11, 20])
+def test_angle_plot_colours_are_distinct(n):
+    from matplotlib.colors import to_rgba
+
+    from senerf.bench.plots import _distinct_colours
+
+    rgba = [to_rgba(c) for c in _distinct_colours(n)]
+    assert len(rgba) == n and len(set(rgba)) == n
+
+
 def test_angles_command_on_lego(lego_dir, tmp_path):
     from senerf.bench.cli import main
     from senerf.bench.plots import line_view_angles
@@ -58,3 +68,7 @@ def test_angles_command_on_lego(lego_dir, tmp_path):
     assert main(["angles", str(tmp_path / "r.jsonl"), "--scene", str(lego_dir), "--protocol",
                  "synthetic-extreme3@100", "--out", str(out)]) == 0
     assert iio.imread(out).ndim == 3
+    # --methods filters the lines: none left is a one-line error naming the results file
+    assert main(["angles", str(tmp_path / "r.jsonl"), "--scene", str(lego_dir), "--protocol",
+                 "synthetic-extreme3@100", "--out", str(tmp_path / "none.png"), "--methods", "baseline"]) == 2
+    assert not (tmp_path / "none.png").exists()
