@@ -374,6 +374,19 @@ def _sample_pseudo_poses(scene, train_idx, cfg: SelfTrainConfig, iteration: int)
     return np.asarray(c2w, dtype=np.float64)
 
 
+def _selftrain_identity(selftrain: dict) -> dict:
+    """The self-training settings as the resume fingerprint sees them: settings added later are written the
+    way earlier versions recorded the same behaviour (``batch_empty = 0`` did not exist; ``student_grid``
+    'teacher' / 'none' was ``skip_empty`` True / False), so run folders made before they existed resume."""
+    out = dict(selftrain)
+    if out.get("batch_empty") == 0:
+        del out["batch_empty"]
+    legacy = {"teacher": True, "none": False}
+    if out.get("student_grid") in legacy:
+        out["skip_empty"] = legacy[out.pop("student_grid")]
+    return out
+
+
 def _fingerprint(record: dict) -> str:
     return hashlib.sha256(json.dumps(record, sort_keys=True, default=str).encode()).hexdigest()[:16]
 
@@ -435,9 +448,10 @@ def run_selftraining(scene, train_idx, test_idx, model, train_cfg, cfg: SelfTrai
                   model=config_to_dict(model), selftrain=config_to_dict(cfg), **(extra_config or {}))
     h, w = scene.intrinsics.size
     volatile = ("iterations", "device", "checkpoint_every")  # may change between a run and its resume
+    identity = {**config, "selftrain": _selftrain_identity(config["selftrain"])}
     fingerprint = _fingerprint(dict(
         config={name: ({k: v for k, v in part.items() if k not in volatile} if isinstance(part, dict) else part)
-                for name, part in config.items()},
+                for name, part in identity.items()},
         scene=scene.name, train=train_idx.tolist(), test=test_idx.tolist(), size=[h, w]))
     metrics = {"senerf_version": __version__, "command": list(command or []), "config": config,
                "scene": scene.name, "train_views": train_idx.tolist(), "test_views": test_idx.tolist(),

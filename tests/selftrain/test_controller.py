@@ -224,3 +224,27 @@ def test_empty_space_pixels_become_reliable(tiny_scene, tiny_teacher):
     assert controller_mod._pseudo_rays(out[0.0], scene.intrinsics, model, "cpu", 3).empty is None
     with pytest.raises(InputError, match="empty_opacity"):
         SelfTrainConfig(batch_empty=256, empty_opacity=0.0)
+
+
+# the "selftrain" block of metrics.json as senerf wrote it before batch_empty and student_grid existed
+# (copied from the metrics.json of a session-2 run: lego Extreme, fast preset, seed 0)
+_OLD_SELFTRAIN = {
+    "iterations": 1, "n_pseudo_per_input": 8, "pseudo_range_deg": 10.0, "pseudo_range_step_deg": 5.0,
+    "features": "vgg19", "normalize_layers": True, "threshold": "adaptive", "alpha0": 0.15, "alpha_step": 0.05,
+    "fixed_tau": 0.6, "beta": 16.0, "opacity_threshold": 0.5, "occlusion_rel_tol": 0.05, "batch_reliable": 512,
+    "batch_prior": 128, "lambda_color": 1.0, "lambda_geometry": 1.0, "lambda_prior": 0.005,
+    "geometry_target": "weights", "density_distill": True, "prior": True, "kernel_size": 3, "kernel_std": 1.0,
+    "skip_empty": True, "seed": 0, "reliability": "features", "oracle_max_error": 0.1, "empty_opacity": 0.2}
+
+
+def test_runs_made_before_the_new_settings_keep_their_resume_identity():
+    from senerf.train import config_to_dict
+
+    same = config_to_dict(SelfTrainConfig(iterations=1))
+    assert controller_mod._selftrain_identity(same) == _OLD_SELFTRAIN
+    no_grid = config_to_dict(SelfTrainConfig(iterations=1, student_grid="none"))
+    assert controller_mod._selftrain_identity(no_grid) == {**_OLD_SELFTRAIN, "skip_empty": False}
+    # settings that did not exist before keep their own, different identity
+    for changed in (dict(student_grid="student"), dict(batch_empty=256)):
+        ident = controller_mod._selftrain_identity(config_to_dict(SelfTrainConfig(iterations=1, **changed)))
+        assert ident != _OLD_SELFTRAIN and ident.items() >= {k: v for k, v in changed.items()}.items()
