@@ -135,13 +135,15 @@ def line_view_angles(line: dict, c2w: np.ndarray, center: np.ndarray | tuple | N
 
 
 def _distinct_colours(n: int) -> list:
-    """``n`` colours no two alike: matplotlib's 10-colour cycle, or 'tab20' (up to 20) beyond 10 series."""
+    """``n`` colours no two alike: matplotlib's 10-colour cycle, 'tab20' for 11-20 series, evenly spaced
+    'turbo' colours beyond."""
     from matplotlib import colormaps
 
     if n <= 10:
         return [f"C{i}" for i in range(n)]
-    cmap = colormaps["tab20"]
-    return [cmap(i % 20) for i in range(n)]
+    if n <= 20:
+        return [colormaps["tab20"](i) for i in range(n)]
+    return [colormaps["turbo"](x) for x in np.linspace(0.0, 1.0, n)]
 
 
 def plot_psnr_vs_angle(angles_deg: dict[str, np.ndarray], psnr: dict[str, np.ndarray], path: str | Path,

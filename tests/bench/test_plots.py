@@ -40,7 +40,7 @@ def test_analysis_plots_write_pngs(tmp_path):
         plot_psnr_vs_angle({"x": a}, {"x": a[:3]}, tmp_path / "bad.png")
 
 
-@pytest.mark.parametrize("n", [1, 10, 11, 20])
+@pytest.mark.parametrize("n", [1, 10, 11, 20, 21, 40])
 def test_angle_plot_colours_are_distinct(n):
     from matplotlib.colors import to_rgba
 
