@@ -175,6 +175,9 @@ class PseudoLabels:
         weights: (P, H, W) reliable weight in [0, 1].
         prior: (P, H, W) prior weight (unreliable foreground pixels with a reliable neighbour).
         neighbour: (P, H, W, Q*Q - 1) normalised neighbour weights.
+        empty: (P, H, W) bool: reliable pixels that are empty space (teacher opacity below
+            ``SelfTrainConfig.empty_opacity``; all False when it is 0).  A subset of ``weights > 0``; the one
+            place this test is made, by whichever producer (features or oracle) made the labels.
     """
 
     c2w: np.ndarray
@@ -187,6 +190,14 @@ class PseudoLabels:
     weights: np.ndarray
     prior: np.ndarray
     neighbour: np.ndarray
+    empty: np.ndarray
+
+    def __post_init__(self) -> None:
+        if self.empty.shape != self.weights.shape or self.empty.dtype != bool:
+            raise ValueError(f"empty must be a {self.weights.shape} bool array, got {self.empty.shape} "
+                             f"{self.empty.dtype}")
+        if np.any(self.empty & ~(self.weights > 0)):
+            raise ValueError("empty pixels must be reliable (weights > 0)")
 
     @property
     def reliable_fraction(self) -> float:
@@ -246,8 +257,8 @@ def estimate_reliability(teacher, occupancy, model, scene, train_idx, pseudo_c2w
         sims[i], fg[i] = res.similarity, res.foreground
     tau = resolve_threshold(cfg.threshold, sims[fg], alpha=alpha, tau=cfg.fixed_tau)
     weights = threshold_weights(sims, fg, cfg.threshold, tau=tau, beta=cfg.beta)
-    if cfg.empty_opacity > 0:
-        weights = np.where(pseudo["acc"] < cfg.empty_opacity, np.float32(1.0), weights).astype(np.float32)
+    empty = _empty_pixels(pseudo["acc"], cfg.empty_opacity)
+    weights = np.where(empty, np.float32(1.0), weights).astype(np.float32)
     if cfg.threshold == "unified":
         neighbour, has = unified_prior_weights(sims, fg, cfg.kernel_size, cfg.kernel_std)
         prior = np.where(fg & has, 1.0 - weights, 0.0).astype(np.float32)
@@ -256,7 +267,12 @@ def estimate_reliability(teacher, occupancy, model, scene, train_idx, pseudo_c2w
         prior = (fg & has & (weights <= 0)).astype(np.float32)
     return PseudoLabels(c2w=pseudo_c2w, rgb=pseudo["rgb"], z_depth=pseudo["z_depth"], acc=pseudo["acc"],
                         similarity=sims, foreground=fg, tau=tau, weights=weights, prior=prior,
-                        neighbour=neighbour)
+                        neighbour=neighbour, empty=empty)
+
+
+def _empty_pixels(acc: np.ndarray, empty_opacity: float) -> np.ndarray:
+    """(...) bool: pixels the teacher renders with opacity ``acc (...)`` below ``empty_opacity`` (none at 0)."""
+    return np.asarray(acc) < empty_opacity if empty_opacity > 0 else np.zeros(np.shape(acc), bool)
 
 
 def reliability_mask_quality(teacher, occupancy, model, scene, train_idx, eval_idx, extractor,
@@ -334,19 +350,17 @@ def oracle_reliability(teacher, occupancy, model, scene, pseudo_idx, cfg: SelfTr
     everything = np.ones_like(truth)
     neighbour, has = prior_weights(truth, cfg.kernel_size, cfg.kernel_std)
     prior = (has & ~truth).astype(np.float32)
+    empty = truth & _empty_pixels(pseudo["acc"], cfg.empty_opacity)
     return PseudoLabels(c2w=c2w, rgb=pseudo["rgb"], z_depth=pseudo["z_depth"], acc=pseudo["acc"],
                         similarity=weights.copy(), foreground=everything, tau=None, weights=weights,
-                        prior=prior, neighbour=neighbour)
+                        prior=prior, neighbour=neighbour, empty=empty)
 
 
-def _pseudo_rays(labels: PseudoLabels, intrinsics, model, device, q: int, empty_opacity: float = 0.0
-                 ) -> PseudoRays:
+def _pseudo_rays(labels: PseudoLabels, intrinsics, model, device, q: int) -> PseudoRays:
     rays = camera_rays(intrinsics, labels.c2w, model, device)
     t = lambda a: torch.as_tensor(np.ascontiguousarray(a), dtype=torch.float32, device=device)  # noqa: E731
     n = labels.weights.size
-    empty = None
-    if empty_opacity > 0:
-        empty = torch.as_tensor(((labels.acc < empty_opacity) & (labels.weights > 0)).reshape(-1), device=device)
+    empty = torch.as_tensor(np.ascontiguousarray(labels.empty.reshape(-1)), device=device)
     return PseudoRays(rays["origins"], rays["dirs"], rays["near"], rays["far"], tuple(labels.weights.shape),
                       t(labels.weights.reshape(-1)), t(labels.prior.reshape(-1)),
                       t(labels.neighbour.reshape(n, -1)), q=q, empty=empty)
@@ -500,7 +514,7 @@ def run_selftraining(scene, train_idx, test_idx, model, train_cfg, cfg: SelfTrai
             echo(f"selftrain: iteration {k}: {pseudo_c2w.shape[0]} pseudo views within "
                  f"{cfg.pseudo_range(k):g} deg, tau {tau_txt}, reliable {100 * reliable_fraction:.1f} % of "
                  f"foreground, prior on {100 * float(labels.prior[labels.foreground].mean()):.1f} %")
-            pseudo = _pseudo_rays(labels, scene.intrinsics, model, device, cfg.kernel_size, cfg.empty_opacity)
+            pseudo = _pseudo_rays(labels, scene.intrinsics, model, device, cfg.kernel_size)
             extra = DistillationLoss(teacher, pseudo, cfg.distill_config(), model.n_samples,
                                      model.train_background, teacher_occupancy=occupancy)
         result = train_field(field, rays, tcfg, extra_loss=extra, checkpoint=ckpt_dir / f"iter_{k}_train.pt",

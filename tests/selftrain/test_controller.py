@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import ast
+import dataclasses
 import json
 from pathlib import Path
 
@@ -193,6 +194,8 @@ def test_oracle_masks_are_the_colour_error(tiny_scene, tiny_teacher):
     err = np.abs(np.clip(labels.rgb, 0, 1) - known_images(scene, held, model)).mean(-1)
     np.testing.assert_array_equal(labels.weights > 0, err < 0.2)
     assert labels.foreground.all()                      # background pixels count too (paper Fig. 1)
+    # the oracle's empty rays: right by the ground truth and below the empty opacity
+    np.testing.assert_array_equal(labels.empty, (err < 0.2) & (labels.acc < cfg.empty_opacity))
     assert not np.any((labels.prior > 0) & (labels.weights > 0))
     with pytest.raises(InputError):
         SelfTrainConfig(reliability="ground-truth")
@@ -218,10 +221,14 @@ def test_empty_space_pixels_become_reliable(tiny_scene, tiny_teacher):
     assert np.all(out[0.0].weights[~out[0.0].foreground] == 0.0)
     with pytest.raises(InputError):
         SelfTrainConfig(empty_opacity=1.5)
-    # the rays handed to the distillation mark exactly those pixels as the empty pool
-    rays = controller_mod._pseudo_rays(out[0.6], scene.intrinsics, model, "cpu", 3, empty_opacity=0.6)
+    # the labels mark exactly those pixels empty, and the rays handed to the distillation carry that mask
+    np.testing.assert_array_equal(out[0.6].empty, low)
+    assert not out[0.0].empty.any()
+    rays = controller_mod._pseudo_rays(out[0.6], scene.intrinsics, model, "cpu", 3)
     np.testing.assert_array_equal(rays.empty.numpy(), low.reshape(-1))
-    assert controller_mod._pseudo_rays(out[0.0], scene.intrinsics, model, "cpu", 3).empty is None
+    assert not controller_mod._pseudo_rays(out[0.0], scene.intrinsics, model, "cpu", 3).empty.any()
+    with pytest.raises(ValueError, match="must be reliable"):      # empty pixels are a subset of reliable ones
+        dataclasses.replace(out[0.0], empty=~(out[0.0].weights > 0))
     with pytest.raises(InputError, match="empty_opacity"):
         SelfTrainConfig(batch_empty=256, empty_opacity=0.0)
 
