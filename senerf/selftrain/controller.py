@@ -56,8 +56,11 @@ RELIABILITY_KINDS = ("features", "oracle")
 
 
 @dataclass(frozen=True)
-class SelfTrainConfig:
+class SelfTrainConfig(DistillConfig):
     """Self-training settings (every one is recorded in ``metrics.json``).
+
+    It extends :class:`DistillConfig` (whose fields it inherits, one definition of each, and validates as
+    :class:`~senerf.errors.InputError` under the field name ``distillation``) with the loop's own settings.
 
     Attributes:
         iterations: self-training iterations after the baseline (0 = baseline only).
@@ -73,7 +76,7 @@ class SelfTrainConfig:
         opacity_threshold: teacher opacity below which a pixel is background (ignored).
         occlusion_rel_tol: relative depth slack of the occlusion test.
         batch_reliable, batch_prior, batch_empty, lambda_color, lambda_geometry, lambda_prior, geometry_target,
-        density_distill, prior, kernel_size, kernel_std, student_grid: see :class:`DistillConfig`.
+        density_distill, prior, kernel_size, kernel_std, student_grid: inherited, see :class:`DistillConfig`.
         seed: seeds pseudo-view sampling (fields are initialised from ``TrainConfig.seed``).
         reliability: 'features' (the method: feature consistency across views) or 'oracle' (the paper's
             Figure 1 toy experiment, an analysis that needs ground truth: pseudo views are held-out dataset
@@ -103,18 +106,6 @@ class SelfTrainConfig:
     beta: float = 16.0
     opacity_threshold: float = 0.5
     occlusion_rel_tol: float = 0.05
-    batch_reliable: int = 512
-    batch_prior: int = 128
-    batch_empty: int = 0
-    lambda_color: float = 1.0
-    lambda_geometry: float = 1.0
-    lambda_prior: float = 0.005
-    geometry_target: str = "weights"
-    density_distill: bool = True
-    prior: bool = True
-    kernel_size: int = 3
-    kernel_std: float = 1.0
-    student_grid: str = "teacher"
     seed: int = 0
     reliability: str = "features"
     oracle_max_error: float = 0.1
@@ -147,12 +138,12 @@ class SelfTrainConfig:
             raise InputError("batch_empty > 0 draws empty-space rays apart, which needs empty_opacity > 0",
                              field="batch_empty")
         try:
-            self.distill_config()
+            super().__post_init__()
         except ValueError as exc:
             raise InputError(str(exc), field="distillation") from None
 
     def distill_config(self) -> DistillConfig:
-        """The :class:`DistillConfig` part of this configuration (its fields, taken by name)."""
+        """The :class:`DistillConfig` part of this configuration (a plain ``DistillConfig``)."""
         return DistillConfig(**{f.name: getattr(self, f.name) for f in dataclasses.fields(DistillConfig)})
 
     def alpha(self, iteration: int) -> float:
