@@ -393,6 +393,30 @@ def _selftrain_identity(selftrain: dict) -> dict:
     return out
 
 
+def _run_fingerprints(config: dict, scene_name: str, train_idx: np.ndarray, test_idx: np.ndarray,
+                      size: tuple) -> tuple[str, str]:
+    """The resume fingerprints of a run: ``(written, also_accepted)``.
+
+    Both hash the run's ``config`` (less what may change on resume: the iteration count, the device, the
+    checkpoint interval), the scene, the views and the image size.  The written one sees the self-training
+    settings through :func:`_selftrain_identity` (as versions before ``batch_empty`` / ``student_grid``
+    recorded the same behaviour); the accepted one sees them as they are (as the versions between those
+    settings' introduction and that mapping, commits 2af0d7f-4f7b14e, recorded them), so run folders of
+    both kinds resume.
+    """
+    volatile = ("iterations", "device", "checkpoint_every")  # may change between a run and its resume
+
+    def fingerprint(selftrain: dict) -> str:
+        identity = {**config, "selftrain": selftrain}
+        return _fingerprint(dict(
+            config={name: ({k: v for k, v in part.items() if k not in volatile} if isinstance(part, dict) else part)
+                    for name, part in identity.items()},
+            scene=scene_name, train=np.asarray(train_idx).tolist(), test=np.asarray(test_idx).tolist(),
+            size=list(size)))
+
+    return fingerprint(_selftrain_identity(config["selftrain"])), fingerprint(config["selftrain"])
+
+
 def _fingerprint(record: dict) -> str:
     return hashlib.sha256(json.dumps(record, sort_keys=True, default=str).encode()).hexdigest()[:16]
 
@@ -406,9 +430,9 @@ def _save_teacher(path: Path, field, occupancy, iteration: int, fingerprint: str
     save_checkpoint(path, state)
 
 
-def _load_teacher(path: Path, model, cfg_train, fingerprint: str, device):
+def _load_teacher(path: Path, model, cfg_train, fingerprints: tuple[str, ...], device):
     state = load_checkpoint(path, map_location=device)
-    if state.get("format") != _CKPT_FORMAT or state.get("fingerprint") != fingerprint:
+    if state.get("format") != _CKPT_FORMAT or state.get("fingerprint") not in fingerprints:
         raise InputError("output folder holds a run with different settings; use --overwrite or another --out",
                          file=path)
     iteration = int(state["iteration"])
@@ -453,12 +477,7 @@ def run_selftraining(scene, train_idx, test_idx, model, train_cfg, cfg: SelfTrai
     config = dict(train=config_to_dict(train_cfg), student=config_to_dict(student_cfg),
                   model=config_to_dict(model), selftrain=config_to_dict(cfg), **(extra_config or {}))
     h, w = scene.intrinsics.size
-    volatile = ("iterations", "device", "checkpoint_every")  # may change between a run and its resume
-    identity = {**config, "selftrain": _selftrain_identity(config["selftrain"])}
-    fingerprint = _fingerprint(dict(
-        config={name: ({k: v for k, v in part.items() if k not in volatile} if isinstance(part, dict) else part)
-                for name, part in identity.items()},
-        scene=scene.name, train=train_idx.tolist(), test=test_idx.tolist(), size=[h, w]))
+    fingerprint, *also_accepted = _run_fingerprints(config, scene.name, train_idx, test_idx, (h, w))
     metrics = {"senerf_version": __version__, "command": list(command or []), "config": config,
                "scene": scene.name, "train_views": train_idx.tolist(), "test_views": test_idx.tolist(),
                "resolution": [int(h), int(w)], "iterations": [], "seconds_total": 0.0}
@@ -468,7 +487,8 @@ def run_selftraining(scene, train_idx, test_idx, model, train_cfg, cfg: SelfTrai
     teacher, occupancy, start = None, None, 0
     seconds_before = 0.0
     if teacher_path.exists():
-        teacher, occupancy, done, rows = _load_teacher(teacher_path, model, train_cfg, fingerprint, device)
+        teacher, occupancy, done, rows = _load_teacher(teacher_path, model, train_cfg, (fingerprint, *also_accepted),
+                                                       device)
         metrics["iterations"] = [it for it in rows if it["iteration"] <= done]
         seconds_before = float(sum(it.get("seconds", 0.0) for it in metrics["iterations"]))
         start = done + 1

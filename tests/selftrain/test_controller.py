@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import ast
 import dataclasses
+import hashlib
 import json
 from pathlib import Path
 
@@ -140,6 +141,32 @@ def test_tiny_end_to_end_with_resume(tiny_scene, tmp_path, monkeypatch):
         controller_mod.run_selftraining(scene, train_idx, test_idx, model, tcfg,
                                         SelfTrainConfig(iterations=1, features="daisy"), out, progress=False,
                                         echo=lines.append)
+    # a run folder written by commits 2af0d7f-4f7b14e (their fingerprint hashed the settings as they are)
+    # resumes too; a foreign fingerprint does not
+    from senerf.train import load_checkpoint, save_checkpoint
+
+    ckpt = out / "checkpoints" / "teacher.pt"
+    state = load_checkpoint(ckpt)
+    for fingerprint, resumes in ((_fingerprint_as_at_2af0d7f(doc), True), ("0123456789abcdef", False)):
+        save_checkpoint(ckpt, {**state, "fingerprint": fingerprint})
+        calls.clear()
+        if resumes:
+            controller_mod.run_selftraining(scene, train_idx, test_idx, model, tcfg, cfg, out, progress=False,
+                                            echo=lines.append)
+            assert calls == []
+        else:
+            with pytest.raises(InputError, match="different settings"):
+                controller_mod.run_selftraining(scene, train_idx, test_idx, model, tcfg, cfg, out,
+                                                progress=False, echo=lines.append)
+
+
+def _fingerprint_as_at_2af0d7f(doc: dict) -> str:
+    """The resume fingerprint as commits 2af0d7f-4f7b14e computed it, rebuilt from a metrics.json ``doc``."""
+    volatile = ("iterations", "device", "checkpoint_every")
+    record = dict(config={name: ({k: v for k, v in part.items() if k not in volatile} if isinstance(part, dict)
+                                 else part) for name, part in doc["config"].items()},
+                  scene=doc["scene"], train=doc["train_views"], test=doc["test_views"], size=doc["resolution"])
+    return hashlib.sha256(json.dumps(record, sort_keys=True, default=str).encode()).hexdigest()[:16]
 
 
 def _orbit_scene(azimuths_deg):
