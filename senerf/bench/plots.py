@@ -69,13 +69,14 @@ def plot_frontier(aggs: list[Aggregate], path: str | Path, title: str = "") -> P
         by_method[(scene, protocol, method)].append(group[-1])
         if len(group) > 1:
             ax_t.plot([a.seconds.mean for a in group], [a.psnr.mean for a in group], ":", color="0.5", lw=1)
+    colours = _distinct_colours(len(by_method))
     for i, (key, finals) in enumerate(sorted(by_method.items())):
         finals.sort(key=lambda a: PRESET_ORDER.get(a.preset, 9))
         label = " ".join(key[2:]) if len({k[:2] for k in by_method}) == 1 else " ".join(key)
         ys, yerr = [a.psnr.mean for a in finals], [_err(a.psnr) for a in finals]
         for ax, stat in ((ax_t, "seconds"), (ax_m, "peak_memory_mib")):
             xs = [getattr(a, stat).mean for a in finals]
-            ax.errorbar(xs, ys, xerr=[_err(getattr(a, stat)) for a in finals], yerr=yerr, color=f"C{i}",
+            ax.errorbar(xs, ys, xerr=[_err(getattr(a, stat)) for a in finals], yerr=yerr, color=colours[i],
                         marker="os^Dv"[i % 5], capsize=3, label=label)
             for a, x, y in zip(finals, xs, ys):
                 ax.annotate(a.preset, (x, y), textcoords="offset points", xytext=(4, 4), fontsize=8)
@@ -85,7 +86,7 @@ def plot_frontier(aggs: list[Aggregate], path: str | Path, title: str = "") -> P
     for ax in (ax_t, ax_m):
         ax.set_ylabel("test PSNR (dB)")
         ax.grid(alpha=0.3)
-        ax.legend(fontsize=8)
+    _legend_outside(fig, ax_t)
     fig.suptitle(title or "PSNR vs cost per preset (dotted: self-training iterations)")
     return _save(fig, path)
 
@@ -97,20 +98,21 @@ def plot_iterations(aggs: list[Aggregate], path: str | Path, title: str = "") ->
     series: dict[tuple, list[Aggregate]] = defaultdict(list)
     for a in aggs:
         series[(a.scene, a.protocol, _method_label(a), a.preset)].append(a)
-    for (scene, protocol, method, preset), group in sorted(series.items()):
+    colours = _distinct_colours(len(series))
+    for colour, ((scene, protocol, method, preset), group) in zip(colours, sorted(series.items())):
         group.sort(key=lambda a: a.iteration)
         it = [a.iteration for a in group]
         label = f"{scene} {method} {preset}"
         ax_p.errorbar(it, [a.psnr.mean for a in group], yerr=[_err(a.psnr) for a in group], marker="o",
-                      capsize=3, label=label)
+                      capsize=3, label=label, color=colour)
         ax_s.errorbar(it, [a.ssim.mean for a in group], yerr=[_err(a.ssim) for a in group], marker="o",
-                      capsize=3, label=label)
+                      capsize=3, label=label, color=colour)
     for ax, name in ((ax_p, "test PSNR (dB)"), (ax_s, "test SSIM")):
         ax.set_xlabel("self-training iteration (0 = teacher)")
         ax.set_ylabel(name)
         ax.grid(alpha=0.3)
         ax.xaxis.get_major_locator().set_params(integer=True)
-    ax_p.legend(fontsize=7)
+    _legend_outside(fig, ax_p)
     fig.suptitle(title or "quality per self-training iteration")
     return _save(fig, path)
 
@@ -132,6 +134,13 @@ def line_view_angles(line: dict, c2w: np.ndarray, center: np.ndarray | tuple | N
     c2w = np.asarray(c2w)
     angles = nearest_view_angles(c2w[np.asarray(train)], c2w[np.asarray(test)], center)
     return angles, np.asarray(per_view, np.float64)
+
+
+def _legend_outside(fig: Figure, ax) -> None:
+    """One legend for the figure, to the right of its panels (where it hides no data), from ``ax``'s series."""
+    handles, labels = ax.get_legend_handles_labels()
+    if handles:
+        fig.legend(handles, labels, loc="center left", bbox_to_anchor=(1.0, 0.5), fontsize=8, frameon=False)
 
 
 def _distinct_colours(n: int) -> list:
