@@ -220,7 +220,8 @@ def estimate_reliability(teacher, occupancy, model, scene, train_idx, pseudo_c2w
         extractor: a :class:`~senerf.selftrain.features.FeatureExtractor`.
         cfg: thresholds, occlusion tolerance, kernel.
         alpha: the adaptive threshold's alpha for this iteration.
-        known_features: (m, H, W, C) features of :func:`known_images`; computed when None.
+        known_features: (m, H, W, C) features of :func:`known_images` (an array or ``extractor.lazy(...)``);
+            computed (lazily) when None.
         renders: ``(known, pseudo)`` teacher renders (``senerf.train.render_views`` dicts of the known and the
             pseudo cameras) to reuse; rendered when None.
     Returns:
@@ -230,7 +231,7 @@ def estimate_reliability(teacher, occupancy, model, scene, train_idx, pseudo_c2w
     intr = scene.intrinsics
     known_c2w = np.asarray(scene.c2w[train_idx], dtype=np.float64)
     if known_features is None:
-        known_features = extractor(known_images(scene, train_idx, model))
+        known_features = extractor.lazy(known_images(scene, train_idx, model))
     if renders is None:
         renders = (render_views(teacher, model, intr, known_c2w, occupancy=occupancy, device=device),
                    render_views(teacher, model, intr, pseudo_c2w, occupancy=occupancy, device=device))
@@ -509,7 +510,7 @@ def run_selftraining(scene, train_idx, test_idx, model, train_cfg, cfg: SelfTrai
             if extractor is None and cfg.reliability == "features":
                 extractor = make_feature_extractor(cfg.features, **(
                     {"normalize_layers": cfg.normalize_layers} if cfg.features == "vgg19" else {}))
-                known_feats = extractor(known_images(scene, train_idx, model))
+                known_feats = extractor.lazy(known_images(scene, train_idx, model))
             if cfg.reliability == "oracle":
                 pseudo_idx = dataset_pseudo_views(scene, train_idx, test_idx, cfg.pseudo_range(k),
                                                   cfg.n_pseudo_per_input * train_idx.size)

@@ -16,6 +16,11 @@ Every extractor maps images ``(n, H, W, 3)`` float32 in ``[0, 1]`` (straight RGB
   ``relu1_2``'s) does not dominate.  ``normalize_layers=False`` is the paper's plain concatenation.
 * :class:`DaisyFeatures` (``'daisy'``): OpenCV-contrib dense DAISY descriptors computed at every pixel
   centre of the grey image (200 floats per pixel with the default parameters); no learned weights.
+
+``extractor.lazy(images)`` gives the same features as ``extractor(images)`` for views that are read one at a
+time (the known views of a fit): VGG-19 keeps the raw maps at their own resolutions (1/8 of the full-size
+features' floats) and upsamples one view on access, with the very operations ``__call__`` uses, so the values
+are identical; on fern with 3 views at 504x378 the full-size known-view features are 2.2 GB.
 """
 
 from __future__ import annotations
@@ -28,6 +33,7 @@ import torch.nn.functional as F
 
 __all__ = [
     "FeatureExtractor",
+    "LazyViewFeatures",
     "VGG19Features",
     "DaisyFeatures",
     "make_feature_extractor",
@@ -73,6 +79,44 @@ class FeatureExtractor:
 
     def __call__(self, images: np.ndarray) -> np.ndarray:  # pragma: no cover - interface
         raise NotImplementedError
+
+    def lazy(self, images: np.ndarray):
+        """The features of ``images (n, H, W, 3)`` for access one view at a time: anything with ``shape``
+        ``(n, H, W, C)``, ``ndim`` and ``[j] -> (H, W, C)`` float32 equal to ``self(images)[j]``.  This
+        default computes them all now (an ndarray); :class:`VGG19Features` defers the full-size maps."""
+        return self(images)
+
+
+class LazyViewFeatures:
+    """Features of ``n`` views, each computed in full only when indexed (and not kept).
+
+    Args:
+        expand: ``j -> (H, W, C)`` float32 features of view ``j``.
+        shape: ``(n, H, W, C)``.
+
+    ``len``, ``shape``, ``ndim`` and ``[j]`` (an integer) behave as for the ``(n, H, W, C)`` array;
+    ``numpy.asarray`` builds that array (all views at once, what this class exists to avoid).
+    """
+
+    def __init__(self, expand, shape: tuple):
+        if len(shape) != 4:
+            raise ValueError(f"shape must be (n, H, W, C), got {shape}")
+        self._expand = expand
+        self.shape = tuple(int(d) for d in shape)
+        self.ndim = 4
+
+    def __len__(self) -> int:
+        return self.shape[0]
+
+    def __getitem__(self, j) -> np.ndarray:
+        j = int(j)
+        if not -self.shape[0] <= j < self.shape[0]:
+            raise IndexError(f"view {j} of {self.shape[0]}")
+        return self._expand(j % self.shape[0])
+
+    def __array__(self, dtype=None, copy=None) -> np.ndarray:
+        out = np.stack([self[j] for j in range(self.shape[0])])
+        return out if dtype is None else out.astype(dtype, copy=False)
 
 
 def vgg19_weights_path() -> str:
@@ -166,25 +210,52 @@ class VGG19Features(FeatureExtractor):
     def __call__(self, images: np.ndarray) -> np.ndarray:
         images = _check_images(images)
         n, h, w, _ = images.shape
-        if min(h, w) < 8:
-            raise ValueError(f"VGG-19 features need images of at least 8x8 pixels, got {h}x{w}")
+        self._check_size(h, w)
         out = np.empty((n, h, w, self.channels), dtype=np.float32)
         # one image and one layer at a time, written straight into ``out``: upsampling a whole chunk and
         # concatenating it held ~3 copies of the full-resolution features (6.6 GB for 3 fern views at 504x378)
         for start in range(0, n, self.chunk):
             maps = self.feature_maps(images[start:start + self.chunk])
-            with torch.no_grad():
-                for j in range(maps[0].shape[0]):
-                    c0 = 0
-                    for m in maps:
-                        mj = m[j:j + 1]
-                        if mj.shape[-2:] != (h, w):
-                            mj = F.interpolate(mj, size=(h, w), mode="bilinear", align_corners=False)
-                        if self.normalize_layers:
-                            mj = mj / mj.norm(dim=1, keepdim=True).clamp_min(1e-8)
-                        out[start + j, :, :, c0:c0 + mj.shape[1]] = mj[0].permute(1, 2, 0).numpy()
-                        c0 += mj.shape[1]
+            for j in range(maps[0].shape[0]):
+                self._expand_into(out[start + j], [m[j:j + 1] for m in maps])
         return out
+
+    def lazy(self, images: np.ndarray) -> LazyViewFeatures:
+        """:meth:`FeatureExtractor.lazy`: the raw maps now (in the same batches as ``__call__``), each view's
+        upsampled, normalised features when it is indexed: equal to ``self(images)[j]``, bit for bit."""
+        images = _check_images(images)
+        n, h, w, _ = images.shape
+        self._check_size(h, w)
+        per_view: list[list[torch.Tensor]] = []
+        for start in range(0, n, self.chunk):
+            maps = self.feature_maps(images[start:start + self.chunk])
+            per_view += [[m[j:j + 1].clone() for m in maps] for j in range(maps[0].shape[0])]
+
+        def expand(j: int) -> np.ndarray:
+            out = np.empty((h, w, self.channels), dtype=np.float32)
+            self._expand_into(out, per_view[j])
+            return out
+
+        return LazyViewFeatures(expand, (n, h, w, self.channels))
+
+    @staticmethod
+    def _check_size(h: int, w: int) -> None:
+        if min(h, w) < 8:
+            raise ValueError(f"VGG-19 features need images of at least 8x8 pixels, got {h}x{w}")
+
+    def _expand_into(self, out: np.ndarray, maps: list[torch.Tensor]) -> None:
+        """Write one view's features into ``out (H, W, C)``: its raw maps ``(1, C_l, H_l, W_l)`` upsampled to
+        ``H x W``, each layer L2-normalised per pixel when ``normalize_layers``, concatenated."""
+        h, w = out.shape[:2]
+        c0 = 0
+        with torch.no_grad():
+            for mj in maps:
+                if mj.shape[-2:] != (h, w):
+                    mj = F.interpolate(mj, size=(h, w), mode="bilinear", align_corners=False)
+                if self.normalize_layers:
+                    mj = mj / mj.norm(dim=1, keepdim=True).clamp_min(1e-8)
+                out[:, :, c0:c0 + mj.shape[1]] = mj[0].permute(1, 2, 0).numpy()
+                c0 += mj.shape[1]
 
 
 class DaisyFeatures(FeatureExtractor):

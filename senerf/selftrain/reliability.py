@@ -134,7 +134,9 @@ def view_similarity(pseudo_features: np.ndarray, pseudo_z: np.ndarray, pseudo_op
         pseudo_opacity: (H, W) teacher accumulated opacity of the pseudo view.
         pseudo_intrinsics: ``geometry.Intrinsics`` of the pseudo view (size H x W).
         pseudo_c2w: (4, 4) pseudo camera-to-world (OpenCV).
-        known_features: (k, H', W', C) features of the known (real) images.
+        known_features: (k, H', W', C) features of the known (real) images: an array, or anything with
+            ``shape``, ``ndim`` and ``[j] -> (H', W', C)`` (e.g. ``extractor.lazy(images)``, which builds one
+            view's full-size features at a time).
         known_z: (k, H', W') teacher z-depth of the known views (occlusion buffers).
         known_intrinsics: one ``Intrinsics`` shared by the known views (one batched warp) or a sequence of k.
         known_c2w: (k, 4, 4).
@@ -145,7 +147,8 @@ def view_similarity(pseudo_features: np.ndarray, pseudo_z: np.ndarray, pseudo_op
         :class:`ViewSimilarity`.
     """
     pseudo_features = np.asarray(pseudo_features, dtype=np.float32)
-    known_features = np.asarray(known_features, dtype=np.float32)
+    if isinstance(known_features, (np.ndarray, list, tuple)):
+        known_features = np.asarray(known_features, dtype=np.float32)
     pseudo_z = np.asarray(pseudo_z, dtype=np.float64)
     known_z = np.asarray(known_z, dtype=np.float64)
     pseudo_opacity = np.asarray(pseudo_opacity)
@@ -186,11 +189,12 @@ def view_similarity(pseudo_features: np.ndarray, pseudo_z: np.ndarray, pseudo_op
             continue
         uv_j = np.asarray(uv_all[j]).reshape(-1, 2)
         out_j = per_view[j].reshape(-1)
+        features_j = np.asarray(known_features[j], dtype=np.float32)  # (H', W', C), built now when lazy
         # in chunks: a (pixels, C) lookup makes ~6 temporaries of that size (4 GiB for a 504x378 view with
         # VGG's 960 channels in one go; a few hundred MiB per chunk)
         for start in range(0, idx.size, _SAMPLE_CHUNK):
             part = idx[start:start + _SAMPLE_CHUNK]
-            out_j[part] = cosine_similarity(flat_src[part], bilinear_sample(known_features[j], uv_j[part]))
+            out_j[part] = cosine_similarity(flat_src[part], bilinear_sample(features_j, uv_j[part]))
         valid[j] = ok
     similarity = per_view.max(axis=0)
     return ViewSimilarity(similarity=similarity, per_view=per_view, valid=valid, foreground=foreground)

