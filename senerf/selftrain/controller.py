@@ -31,6 +31,7 @@ import dataclasses
 import hashlib
 import json
 import math
+import os
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -49,6 +50,7 @@ from .reliability import (THRESHOLD_KINDS, gt_reliable_mask, mask_quality, resol
                           view_similarity)
 
 __all__ = ["SelfTrainConfig", "PseudoLabels", "run_selftraining", "estimate_reliability", "known_images",
+           "known_view_features", "EAGER_FEATURES_MEMORY_SHARE",
            "reliability_mask_quality", "oracle_reliability", "dataset_pseudo_views", "RELIABILITY_KINDS"]
 
 _CKPT_FORMAT = "senerf-selftrain-1"
@@ -208,6 +210,30 @@ def known_images(scene, idx, model) -> np.ndarray:
     return np.asarray(scene.composite(bg)[idx], dtype=np.float32)
 
 
+#: Known-view features are held at full size while they take at most this share of the machine's memory;
+#: beyond it they are built one view at a time on access (:meth:`FeatureExtractor.lazy`: the same values,
+#: 1/8 of the memory for VGG-19, but each known view is upsampled again for every pseudo view: on fern,
+#: 3 views at 504x378 with the fast preset and 50 student steps, peak RSS 4.0 instead of 5.2 GiB and the
+#: iteration 513 instead of 421 s, BENCHMARKS.md).
+EAGER_FEATURES_MEMORY_SHARE = 0.25
+
+
+def known_view_features(extractor, images: np.ndarray, memory_bytes: int | None = None):
+    """Features of the known ``images (m, H, W, 3)``: the full ``(m, H, W, C)`` array when it takes at most
+    :data:`EAGER_FEATURES_MEMORY_SHARE` of ``memory_bytes`` (default: the machine's physical memory; the
+    array when that is unknown), else ``extractor.lazy(images)``.  Both give the same values."""
+    if memory_bytes is None:
+        try:
+            memory_bytes = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+        except (AttributeError, ValueError, OSError):
+            return extractor(images)
+    m, h, w = np.shape(images)[:3]
+    full_bytes = 4 * m * h * w * int(extractor.channels)
+    if full_bytes <= EAGER_FEATURES_MEMORY_SHARE * memory_bytes:
+        return extractor(images)
+    return extractor.lazy(images)
+
+
 def estimate_reliability(teacher, occupancy, model, scene, train_idx, pseudo_c2w: np.ndarray, extractor,
                          cfg: SelfTrainConfig, alpha: float, known_features: np.ndarray | None = None,
                          device=None, renders: tuple[dict, dict] | None = None) -> PseudoLabels:
@@ -221,7 +247,7 @@ def estimate_reliability(teacher, occupancy, model, scene, train_idx, pseudo_c2w
         cfg: thresholds, occlusion tolerance, kernel.
         alpha: the adaptive threshold's alpha for this iteration.
         known_features: (m, H, W, C) features of :func:`known_images` (an array or ``extractor.lazy(...)``);
-            computed (lazily) when None.
+            computed with :func:`known_view_features` when None.
         renders: ``(known, pseudo)`` teacher renders (``senerf.train.render_views`` dicts of the known and the
             pseudo cameras) to reuse; rendered when None.
     Returns:
@@ -231,7 +257,7 @@ def estimate_reliability(teacher, occupancy, model, scene, train_idx, pseudo_c2w
     intr = scene.intrinsics
     known_c2w = np.asarray(scene.c2w[train_idx], dtype=np.float64)
     if known_features is None:
-        known_features = extractor.lazy(known_images(scene, train_idx, model))
+        known_features = known_view_features(extractor, known_images(scene, train_idx, model))
     if renders is None:
         renders = (render_views(teacher, model, intr, known_c2w, occupancy=occupancy, device=device),
                    render_views(teacher, model, intr, pseudo_c2w, occupancy=occupancy, device=device))
@@ -510,7 +536,7 @@ def run_selftraining(scene, train_idx, test_idx, model, train_cfg, cfg: SelfTrai
             if extractor is None and cfg.reliability == "features":
                 extractor = make_feature_extractor(cfg.features, **(
                     {"normalize_layers": cfg.normalize_layers} if cfg.features == "vgg19" else {}))
-                known_feats = extractor.lazy(known_images(scene, train_idx, model))
+                known_feats = known_view_features(extractor, known_images(scene, train_idx, model))
             if cfg.reliability == "oracle":
                 pseudo_idx = dataset_pseudo_views(scene, train_idx, test_idx, cfg.pseudo_range(k),
                                                   cfg.n_pseudo_per_input * train_idx.size)

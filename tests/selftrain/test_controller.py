@@ -282,3 +282,18 @@ def test_runs_made_before_the_new_settings_keep_their_resume_identity():
     for changed in (dict(student_grid="student"), dict(batch_empty=256)):
         ident = controller_mod._selftrain_identity(config_to_dict(SelfTrainConfig(iterations=1, **changed)))
         assert ident != _OLD_SELFTRAIN and ident.items() >= {k: v for k, v in changed.items()}.items()
+
+
+def test_known_view_features_are_lazy_only_beyond_the_memory_share():
+    """Full-size known features while they fit the share of memory (the values either way are equal)."""
+    from senerf.selftrain import LazyViewFeatures, known_view_features, make_feature_extractor
+
+    ext = make_feature_extractor("vgg19")
+    images = np.random.default_rng(0).random((2, 16, 20, 3), dtype=np.float32)
+    full_bytes = 4 * 2 * 16 * 20 * ext.channels
+    share = controller_mod.EAGER_FEATURES_MEMORY_SHARE
+    eager = known_view_features(ext, images, memory_bytes=int(full_bytes / share) + 1)
+    lazy = known_view_features(ext, images, memory_bytes=int(full_bytes / share) - 1)
+    assert isinstance(eager, np.ndarray) and isinstance(lazy, LazyViewFeatures)
+    np.testing.assert_array_equal(np.asarray(lazy), eager)
+    assert isinstance(known_view_features(ext, images), np.ndarray)     # this machine: far below the share
