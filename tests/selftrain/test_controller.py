@@ -221,7 +221,13 @@ def test_oracle_masks_are_the_colour_error(tiny_scene, tiny_teacher):
     err = np.abs(np.clip(labels.rgb, 0, 1) - known_images(scene, held, model)).mean(-1)
     np.testing.assert_array_equal(labels.weights > 0, err < 0.2)
     assert labels.foreground.all()                      # background pixels count too (paper Fig. 1)
-    # the oracle's empty rays: right by the ground truth and below the empty opacity
+    # the oracle's empty rays: right by the ground truth and below the empty opacity (a high empty opacity,
+    # so that some low-opacity pixels are wrong by the ground truth and must be left out)
+    wide = SelfTrainConfig(reliability="oracle", oracle_max_error=0.2, empty_opacity=0.95)
+    labels_wide = controller_mod.oracle_reliability(res.field, res.occupancy, model, scene, held, wide)
+    low = labels_wide.acc < 0.95
+    assert np.any(low & (err < 0.2)) and np.any(low & (err >= 0.2))
+    np.testing.assert_array_equal(labels_wide.empty, low & (err < 0.2))
     np.testing.assert_array_equal(labels.empty, (err < 0.2) & (labels.acc < cfg.empty_opacity))
     assert not np.any((labels.prior > 0) & (labels.weights > 0))
     with pytest.raises(InputError):
