@@ -26,8 +26,6 @@ ray-building functions (``render_views``, ``camera_rays``); this module does no 
 
 from __future__ import annotations
 
-import dataclasses
-
 import hashlib
 import json
 import math
@@ -62,7 +60,8 @@ class SelfTrainConfig(DistillConfig):
     """Self-training settings (every one is recorded in ``metrics.json``).
 
     It extends :class:`DistillConfig` (whose fields it inherits, one definition of each, and validates as
-    :class:`~senerf.errors.InputError` under the field name ``distillation``) with the loop's own settings.
+    :class:`~senerf.errors.InputError` under the field name ``distillation``) with the loop's own settings,
+    so it is itself the :class:`DistillationLoss`'s configuration.
 
     Attributes:
         iterations: self-training iterations after the baseline (0 = baseline only).
@@ -145,10 +144,6 @@ class SelfTrainConfig(DistillConfig):
         except ValueError as exc:
             raise InputError(str(exc), field="distillation") from None
 
-    def distill_config(self) -> DistillConfig:
-        """The :class:`DistillConfig` part of this configuration (a plain ``DistillConfig``)."""
-        return DistillConfig(**{f.name: getattr(self, f.name) for f in dataclasses.fields(DistillConfig)})
-
     def alpha(self, iteration: int) -> float:
         """Adaptive-threshold alpha of iteration ``iteration >= 1`` (capped at 1)."""
         return min(1.0, self.alpha0 + (iteration - 1) * self.alpha_step)
@@ -214,7 +209,7 @@ def known_images(scene, idx, model) -> np.ndarray:
 #: beyond it they are built one view at a time on access (:meth:`FeatureExtractor.lazy`: the same values,
 #: 1/8 of the memory for VGG-19, but each known view is upsampled again for every pseudo view: on fern,
 #: 3 views at 504x378 with the fast preset and 50 student steps, peak RSS 4.0 instead of 5.2 GiB and the
-#: iteration 513 instead of 421 s, BENCHMARKS.md).
+#: iteration 513 instead of 358 s, each run alone on the machine, BENCHMARKS.md).
 EAGER_FEATURES_MEMORY_SHARE = 0.25
 
 
@@ -554,7 +549,7 @@ def run_selftraining(scene, train_idx, test_idx, model, train_cfg, cfg: SelfTrai
                  f"{cfg.pseudo_range(k):g} deg, tau {tau_txt}, reliable {100 * reliable_fraction:.1f} % of "
                  f"foreground, prior on {100 * float(labels.prior[labels.foreground].mean()):.1f} %")
             pseudo = _pseudo_rays(labels, scene.intrinsics, model, device, cfg.kernel_size)
-            extra = DistillationLoss(teacher, pseudo, cfg.distill_config(), model.n_samples,
+            extra = DistillationLoss(teacher, pseudo, cfg, model.n_samples,
                                      model.train_background, teacher_occupancy=occupancy)
         result = train_field(field, rays, tcfg, extra_loss=extra, checkpoint=ckpt_dir / f"iter_{k}_train.pt",
                              progress=progress)

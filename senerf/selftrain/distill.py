@@ -87,7 +87,7 @@ class DistillConfig:
             what is distilled; all-occupied until the trainer's first grid update) or 'none' (every sample).
             Measured (lego Extreme 100x100, paired with 'teacher' by seed): 'student' fast preset +0.13 ±
             0.39 dB over 6 seeds (p = 0.47), balanced +0.00 ± 0.07 over 3 (p = 0.94); 'none' fast +0.12 ±
-            0.32 over 6 seeds (p = 0.41; 111 ± 9 s a fit against 'student''s 97 ± 8 s in the same session),
+            0.32 over 6 seeds (p = 0.41; 111 ± 9 s a fit against the student grid's 97 ± 8 s in the same session),
             balanced +0.12 ± 0.17 over 3 (p = 0.34).  No measurable gain, so 'teacher' stays.
 
     "Measured" without more: lego Extreme at 100x100, fast preset (one iteration), research runs over
