@@ -201,7 +201,7 @@ def _check_device(device: str) -> str:
 
 def _prepare_out(out: Path, identity: dict, overwrite: bool) -> None:
     """Refuse a folder holding another run (unless ``overwrite``); record this run's identity."""
-    from senerf.train import atomic_write_text
+    from senerf.train import atomic_write_text, settings_differences
 
     run_file = out / _RUN_FILE
     if run_file.exists():
@@ -211,8 +211,10 @@ def _prepare_out(out: Path, identity: dict, overwrite: bool) -> None:
             old = None
         if old != identity:
             if not overwrite:
-                raise InputError("holds a different run (settings differ); use --overwrite or another --out",
-                                 file=out)
+                diffs = settings_differences(old, identity) if isinstance(old, dict) else []
+                what = (f"{diffs[0]}{f' and {len(diffs) - 1} more' if len(diffs) > 1 else ''}" if diffs
+                        else "settings differ" if isinstance(old, dict) else f"its {_RUN_FILE} is unreadable")
+                raise InputError(f"holds a different run ({what}); use --overwrite or another --out", file=out)
             for name in ("checkpoints", "metrics.json", _RUN_FILE):
                 target = out / name
                 if target.is_dir():

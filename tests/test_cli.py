@@ -93,8 +93,14 @@ def test_tiny_end_to_end_fit_resume_and_overwrite(tiny_scene, tmp_path, capsys):
     capsys.readouterr()
     before = (out / "metrics.json").read_bytes()
     assert main([str(tiny_scene), "--out", str(out), *TINY, "--seed", "1"]) == 2
-    assert "different run" in _one_error_line(capsys)
+    assert "different run (train.seed: 0 in the folder, 1 now)" in _one_error_line(capsys)
     assert (out / "metrics.json").read_bytes() == before
+    # ... and so is a folder whose run.json cannot be read
+    run_json = (out / "run.json").read_bytes()
+    (out / "run.json").write_text("{not json")
+    assert main([str(tiny_scene), "--out", str(out), *TINY]) == 2
+    assert "different run (its run.json is unreadable)" in _one_error_line(capsys)
+    (out / "run.json").write_bytes(run_json)
     # ... unless --overwrite
     assert main([str(tiny_scene), "--out", str(out), *TINY, "--seed", "1", "--overwrite"]) == 0
     assert json.loads((out / "metrics.json").read_text())["config"]["train"]["seed"] == 1

@@ -29,7 +29,6 @@ from __future__ import annotations
 import hashlib
 import json
 import math
-import os
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -41,14 +40,14 @@ import torch
 from .. import __version__, geometry
 from ..errors import InputError
 from ..train import (atomic_write_text, build_field, camera_rays, config_to_dict, evaluate, load_checkpoint,
-                     make_occupancy, render_views, save_checkpoint, train_field, write_png)
+                     make_occupancy, render_views, save_checkpoint, settings_differences, train_field,
+                     write_png)
 from .distill import DistillationLoss, DistillConfig, PseudoRays, prior_weights, unified_prior_weights
-from .features import FEATURE_NAMES, make_feature_extractor
+from .features import FEATURE_NAMES, known_view_features, make_feature_extractor
 from .reliability import (THRESHOLD_KINDS, gt_reliable_mask, mask_quality, resolve_threshold, threshold_weights,
                           view_similarity)
 
 __all__ = ["SelfTrainConfig", "PseudoLabels", "run_selftraining", "estimate_reliability", "known_images",
-           "known_view_features", "EAGER_FEATURES_MEMORY_SHARE",
            "reliability_mask_quality", "oracle_reliability", "dataset_pseudo_views", "RELIABILITY_KINDS"]
 
 _CKPT_FORMAT = "senerf-selftrain-1"
@@ -203,30 +202,6 @@ def known_images(scene, idx, model) -> np.ndarray:
         return np.asarray(scene.rgb[idx], dtype=np.float32)
     bg = (1.0, 1.0, 1.0) if model.eval_background == "white" else (0.0, 0.0, 0.0)
     return np.asarray(scene.composite(bg)[idx], dtype=np.float32)
-
-
-#: Known-view features are held at full size while they take at most this share of the machine's memory;
-#: beyond it they are built one view at a time on access (:meth:`FeatureExtractor.lazy`: the same values,
-#: 1/8 of the memory for VGG-19, but each known view is upsampled again for every pseudo view: on fern,
-#: 3 views at 504x378 with the fast preset and 50 student steps, peak RSS 4.0 instead of 5.2 GiB and the
-#: iteration 513 instead of 358 s, each run alone on the machine, BENCHMARKS.md).
-EAGER_FEATURES_MEMORY_SHARE = 0.25
-
-
-def known_view_features(extractor, images: np.ndarray, memory_bytes: int | None = None):
-    """Features of the known ``images (m, H, W, 3)``: the full ``(m, H, W, C)`` array when it takes at most
-    :data:`EAGER_FEATURES_MEMORY_SHARE` of ``memory_bytes`` (default: the machine's physical memory; the
-    array when that is unknown), else ``extractor.lazy(images)``.  Both give the same values."""
-    if memory_bytes is None:
-        try:
-            memory_bytes = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
-        except (AttributeError, ValueError, OSError):
-            return extractor(images)
-    m, h, w = np.shape(images)[:3]
-    full_bytes = 4 * m * h * w * int(extractor.channels)
-    if full_bytes <= EAGER_FEATURES_MEMORY_SHARE * memory_bytes:
-        return extractor(images)
-    return extractor.lazy(images)
 
 
 def estimate_reliability(teacher, occupancy, model, scene, train_idx, pseudo_c2w: np.ndarray, extractor,
@@ -415,48 +390,72 @@ def _selftrain_identity(selftrain: dict) -> dict:
     return out
 
 
-def _run_fingerprints(config: dict, scene_name: str, train_idx: np.ndarray, test_idx: np.ndarray,
-                      size: tuple) -> tuple[str, str]:
-    """The resume fingerprints of a run: ``(written, also_accepted)``.
+_VOLATILE = ("iterations", "device", "checkpoint_every")  # may change between a run and its resume
 
-    Both hash the run's ``config`` (less what may change on resume: the iteration count, the device, the
-    checkpoint interval), the scene, the views and the image size.  The written one sees the self-training
-    settings through :func:`_selftrain_identity` (as versions before ``batch_empty`` / ``student_grid``
-    recorded the same behaviour); the accepted one sees them as they are (as the versions between those
-    settings' introduction and that mapping, commits 2af0d7f-4f7b14e, recorded them), so run folders of
-    both kinds resume.
+# settings added after the checkpoint started recording its settings (``settings_json``): dotted name ->
+# the value that reproduces the behaviour before the setting existed (see ``settings_differences``)
+_ADDED_SETTINGS: dict = {}
+
+
+def _run_settings(config: dict, scene_name: str, train_idx: np.ndarray, test_idx: np.ndarray, size: tuple) -> dict:
+    """What must match for a run folder to resume: the run's ``config`` less what may change on resume
+    (the iteration count, the device, the checkpoint interval), the scene, the views and the image size."""
+    return dict(
+        config={name: ({k: v for k, v in part.items() if k not in _VOLATILE} if isinstance(part, dict) else part)
+                for name, part in config.items()},
+        scene=scene_name, train=np.asarray(train_idx).tolist(), test=np.asarray(test_idx).tolist(),
+        size=list(size))
+
+
+def _run_fingerprints(settings: dict) -> tuple[str, str]:
+    """The resume fingerprints of checkpoints written before ``settings_json`` (they hold only a hash of
+    :func:`_run_settings`): ``(mapped, as_is)``.
+
+    The mapped one sees the self-training settings through :func:`_selftrain_identity` (as versions before
+    ``batch_empty`` / ``student_grid`` recorded the same behaviour); the other sees them as they are (as the
+    versions between those settings' introduction and that mapping, commits 2af0d7f-4f7b14e, recorded
+    them), so run folders of both kinds resume.
     """
-    volatile = ("iterations", "device", "checkpoint_every")  # may change between a run and its resume
-
     def fingerprint(selftrain: dict) -> str:
-        identity = {**config, "selftrain": selftrain}
-        return _fingerprint(dict(
-            config={name: ({k: v for k, v in part.items() if k not in volatile} if isinstance(part, dict) else part)
-                    for name, part in identity.items()},
-            scene=scene_name, train=np.asarray(train_idx).tolist(), test=np.asarray(test_idx).tolist(),
-            size=list(size)))
+        return _fingerprint({**settings, "config": {**settings["config"], "selftrain": selftrain}})
 
-    return fingerprint(_selftrain_identity(config["selftrain"])), fingerprint(config["selftrain"])
+    selftrain = settings["config"]["selftrain"]
+    return fingerprint(_selftrain_identity(selftrain)), fingerprint(selftrain)
 
 
 def _fingerprint(record: dict) -> str:
     return hashlib.sha256(json.dumps(record, sort_keys=True, default=str).encode()).hexdigest()[:16]
 
 
-def _save_teacher(path: Path, field, occupancy, iteration: int, fingerprint: str, iterations: list) -> None:
-    """The finished iteration's field (+ grid) and the metrics rows up to it, in one atomic file."""
-    state = dict(format=_CKPT_FORMAT, iteration=int(iteration), fingerprint=fingerprint,
+def _save_teacher(path: Path, field, occupancy, iteration: int, settings: dict, iterations: list) -> None:
+    """The finished iteration's field (+ grid), its run's settings and the metrics rows up to it, in one
+    atomic file."""
+    state = dict(format=_CKPT_FORMAT, iteration=int(iteration), settings_json=json.dumps(settings, sort_keys=True),
                  field=field.state_dict(), iterations_json=json.dumps(iterations))
     if occupancy is not None:
         state["occupancy"] = occupancy.state_dict()
     save_checkpoint(path, state)
 
 
-def _load_teacher(path: Path, model, cfg_train, fingerprints: tuple[str, ...], device):
+def _check_settings(path: Path, state: dict, settings: dict) -> None:
+    """Refuse a teacher checkpoint of another run, naming the first setting that differs (checkpoints from
+    before ``settings_json`` are matched by fingerprint and cannot name it)."""
+    hint = "use --overwrite or another --out"
+    if state.get("format") != _CKPT_FORMAT:
+        raise InputError(f"output folder holds a checkpoint of another format; {hint}", file=path)
+    if "settings_json" in state:
+        diffs = settings_differences(json.loads(state["settings_json"]), settings, _ADDED_SETTINGS)
+        if diffs:
+            more = f" and {len(diffs) - 1} more" if len(diffs) > 1 else ""
+            raise InputError(f"output folder holds a run with different settings ({diffs[0]}{more}); {hint}",
+                             file=path)
+    elif state.get("fingerprint") not in _run_fingerprints(settings):
+        raise InputError(f"output folder holds a run with different settings; {hint}", file=path)
+
+
+def _load_teacher(path: Path, model, cfg_train, settings: dict, device):
     state = load_checkpoint(path, map_location=device)
-    if state.get("format") != _CKPT_FORMAT or state.get("fingerprint") not in fingerprints:
-        raise InputError("output folder holds a run with different settings; use --overwrite or another --out",
-                         file=path)
+    _check_settings(path, state, settings)
     iteration = int(state["iteration"])
     field = build_field(model, seed=cfg_train.seed, steps=cfg_train.steps).to(device)
     field.load_state_dict(state["field"])
@@ -499,7 +498,7 @@ def run_selftraining(scene, train_idx, test_idx, model, train_cfg, cfg: SelfTrai
     config = dict(train=config_to_dict(train_cfg), student=config_to_dict(student_cfg),
                   model=config_to_dict(model), selftrain=config_to_dict(cfg), **(extra_config or {}))
     h, w = scene.intrinsics.size
-    fingerprint, *also_accepted = _run_fingerprints(config, scene.name, train_idx, test_idx, (h, w))
+    settings = _run_settings(config, scene.name, train_idx, test_idx, (h, w))
     metrics = {"senerf_version": __version__, "command": list(command or []), "config": config,
                "scene": scene.name, "train_views": train_idx.tolist(), "test_views": test_idx.tolist(),
                "resolution": [int(h), int(w)], "iterations": [], "seconds_total": 0.0}
@@ -509,8 +508,7 @@ def run_selftraining(scene, train_idx, test_idx, model, train_cfg, cfg: SelfTrai
     teacher, occupancy, start = None, None, 0
     seconds_before = 0.0
     if teacher_path.exists():
-        teacher, occupancy, done, rows = _load_teacher(teacher_path, model, train_cfg, (fingerprint, *also_accepted),
-                                                       device)
+        teacher, occupancy, done, rows = _load_teacher(teacher_path, model, train_cfg, settings, device)
         metrics["iterations"] = [it for it in rows if it["iteration"] <= done]
         seconds_before = float(sum(it.get("seconds", 0.0) for it in metrics["iterations"]))
         start = done + 1
@@ -561,7 +559,7 @@ def run_selftraining(scene, train_idx, test_idx, model, train_cfg, cfg: SelfTrai
         metrics["iterations"].append(dict(iteration=k, psnr=ev["psnr"], ssim=ev["ssim"], lpips=ev["lpips"],
                                           avg=ev["avg"], reliable_fraction=rf,
                                           seconds=time.perf_counter() - t_it, per_view=ev["per_view"]))
-        _save_teacher(teacher_path, teacher, occupancy, k, fingerprint, metrics["iterations"])
+        _save_teacher(teacher_path, teacher, occupancy, k, settings, metrics["iterations"])
         metrics["seconds_total"] = seconds_before + time.perf_counter() - t_run
         atomic_write_text(metrics_path, json.dumps(metrics, indent=1))
         echo(f"selftrain: iteration {k}: test PSNR {ev['psnr']:.2f} dB, SSIM {ev['ssim']:.3f}")

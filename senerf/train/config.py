@@ -8,6 +8,7 @@ printing one line per choice.  Every choice can be overridden by name through ``
 from __future__ import annotations
 
 import dataclasses
+import json
 import math
 from dataclasses import dataclass, fields
 from typing import Any, Callable, Mapping
@@ -24,6 +25,7 @@ __all__ = [
     "choose_model",
     "camera_aabb",
     "config_to_dict",
+    "settings_differences",
     "build_field",
 ]
 
@@ -194,6 +196,47 @@ def preset_train_config(preset: str = "balanced", **overrides: Any) -> TrainConf
 def config_to_dict(cfg) -> dict:
     """A JSON-ready dict of a config dataclass (tuples become lists)."""
     return json_ready(dataclasses.asdict(cfg))
+
+
+def _flatten(record: Mapping, prefix: str = "") -> dict:
+    out = {}
+    for key, value in record.items():
+        name = f"{prefix}{key}"
+        if isinstance(value, Mapping):
+            out.update(_flatten(value, name + "."))
+        else:
+            out[name] = value
+    return out
+
+
+def settings_differences(stored: Mapping, current: Mapping, added: Mapping[str, Any] | None = None) -> list[str]:
+    """Where two settings records differ, one readable line per setting, sorted by name.
+
+    Records are nested dicts of JSON values (what :func:`config_to_dict` makes); nested keys are compared
+    one by one under dotted names (``train.seed``), lists as whole values.  A setting the stored record
+    lacks is no difference when the current value is the one ``added`` registers for it: the value that
+    reproduces what the version before that setting did (so folders written before it existed resume).
+
+    Example:
+        >>> settings_differences({"train": {"seed": 0}}, {"train": {"seed": 1}})
+        ['train.seed: 0 in the folder, 1 now']
+        >>> settings_differences({"a": 1}, {"a": 1, "b": 0}, added={"b": 0})
+        []
+    """
+    old, new = _flatten(json_ready(dict(stored))), _flatten(json_ready(dict(current)))
+    added = dict(added or {})
+    lines = []
+    for name in sorted(set(old) | set(new)):
+        if name not in old:
+            if name in added and json_ready(added[name]) == new[name]:
+                continue
+            lines.append(f"{name}: absent in the folder, {json.dumps(new[name], default=str)} now")
+        elif name not in new:
+            lines.append(f"{name}: {json.dumps(old[name], default=str)} in the folder, absent now")
+        elif old[name] != new[name]:
+            lines.append(f"{name}: {json.dumps(old[name], default=str)} in the folder, "
+                         f"{json.dumps(new[name], default=str)} now")
+    return lines
 
 
 def json_ready(value):

@@ -136,28 +136,49 @@ def test_tiny_end_to_end_with_resume(tiny_scene, tmp_path, monkeypatch):
     controller_mod.run_selftraining(scene, train_idx, test_idx, model, tcfg, cfg, out, progress=False,
                                     echo=lines.append)
     assert calls == []
-    # different settings in the same folder are refused
-    with pytest.raises(InputError):
+    # different settings in the same folder are refused, naming the setting
+    with pytest.raises(InputError, match=r'different settings \(config.selftrain.features: "vgg19" in the folder, '
+                                         r'"daisy" now\)'):
         controller_mod.run_selftraining(scene, train_idx, test_idx, model, tcfg,
-                                        SelfTrainConfig(iterations=1, features="daisy"), out, progress=False,
+                                        dataclasses.replace(cfg, features="daisy"), out, progress=False,
                                         echo=lines.append)
-    # a run folder written by commits 2af0d7f-4f7b14e (their fingerprint hashed the settings as they are)
-    # resumes too; a foreign fingerprint does not
     from senerf.train import load_checkpoint, save_checkpoint
 
     ckpt = out / "checkpoints" / "teacher.pt"
     state = load_checkpoint(ckpt)
-    for fingerprint, resumes in ((_fingerprint_as_at_2af0d7f(doc), True), ("0123456789abcdef", False)):
-        save_checkpoint(ckpt, {**state, "fingerprint": fingerprint})
+    stored = json.loads(state["settings_json"])
+    assert stored["config"]["selftrain"]["features"] == "vgg19" and "iterations" not in stored["config"]["selftrain"]
+
+    def resumes(new_state, monkeypatch_added=None) -> bool:
+        save_checkpoint(ckpt, new_state)
         calls.clear()
-        if resumes:
+        try:
             controller_mod.run_selftraining(scene, train_idx, test_idx, model, tcfg, cfg, out, progress=False,
                                             echo=lines.append)
-            assert calls == []
-        else:
-            with pytest.raises(InputError, match="different settings"):
-                controller_mod.run_selftraining(scene, train_idx, test_idx, model, tcfg, cfg, out,
-                                                progress=False, echo=lines.append)
+        except InputError as exc:
+            assert "different settings" in str(exc)
+            return False
+        assert calls == []
+        return True
+
+    # a setting added later: a folder without it resumes when the setting keeps the behaviour it had
+    # (the value registered in _ADDED_SETTINGS), not otherwise
+    without = json.loads(state["settings_json"])
+    del without["config"]["selftrain"]["empty_opacity"]
+    state_without = {**state, "settings_json": json.dumps(without)}
+    assert not resumes(state_without)
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(controller_mod, "_ADDED_SETTINGS", {"config.selftrain.empty_opacity": cfg.empty_opacity})
+        assert resumes(state_without)
+        mp.setattr(controller_mod, "_ADDED_SETTINGS", {"config.selftrain.empty_opacity": 0.0})
+        assert not resumes(state_without)
+    # checkpoints from before settings_json hold a fingerprint: those written by commits 2af0d7f-4f7b14e
+    # (the settings hashed as they are) and by earlier ones (student_grid 'teacher' recorded as skip_empty
+    # True, batch_empty 0 absent) resume; a foreign fingerprint does not
+    legacy = {k: v for k, v in state.items() if k != "settings_json"}
+    for fingerprint, ok in ((_fingerprint_as_at_2af0d7f(doc), True), (_fingerprint_before_2af0d7f(doc), True),
+                            ("0123456789abcdef", False)):
+        assert resumes({**legacy, "fingerprint": fingerprint}) is ok
 
 
 def _fingerprint_as_at_2af0d7f(doc: dict) -> str:
@@ -167,6 +188,15 @@ def _fingerprint_as_at_2af0d7f(doc: dict) -> str:
                                  else part) for name, part in doc["config"].items()},
                   scene=doc["scene"], train=doc["train_views"], test=doc["test_views"], size=doc["resolution"])
     return hashlib.sha256(json.dumps(record, sort_keys=True, default=str).encode()).hexdigest()[:16]
+
+
+def _fingerprint_before_2af0d7f(doc: dict) -> str:
+    """The resume fingerprint as commits before 2af0d7f computed it (no ``batch_empty``, ``skip_empty``
+    for the teacher's grid), rebuilt from a metrics.json ``doc`` of a run with the defaults."""
+    selftrain = dict(doc["config"]["selftrain"])
+    assert selftrain.pop("batch_empty") == 0 and selftrain.pop("student_grid") == "teacher"
+    selftrain["skip_empty"] = True
+    return _fingerprint_as_at_2af0d7f({**doc, "config": {**doc["config"], "selftrain": selftrain}})
 
 
 def _orbit_scene(azimuths_deg):
@@ -288,18 +318,3 @@ def test_runs_made_before_the_new_settings_keep_their_resume_identity():
     for changed in (dict(student_grid="student"), dict(batch_empty=256)):
         ident = controller_mod._selftrain_identity(config_to_dict(SelfTrainConfig(iterations=1, **changed)))
         assert ident != _OLD_SELFTRAIN and ident.items() >= {k: v for k, v in changed.items()}.items()
-
-
-def test_known_view_features_are_lazy_only_beyond_the_memory_share():
-    """Full-size known features while they fit the share of memory (the values either way are equal)."""
-    from senerf.selftrain import LazyViewFeatures, known_view_features, make_feature_extractor
-
-    ext = make_feature_extractor("vgg19")
-    images = np.random.default_rng(0).random((2, 16, 20, 3), dtype=np.float32)
-    full_bytes = 4 * 2 * 16 * 20 * ext.channels
-    share = controller_mod.EAGER_FEATURES_MEMORY_SHARE
-    eager = known_view_features(ext, images, memory_bytes=int(full_bytes / share) + 1)
-    lazy = known_view_features(ext, images, memory_bytes=int(full_bytes / share) - 1)
-    assert isinstance(eager, np.ndarray) and isinstance(lazy, LazyViewFeatures)
-    np.testing.assert_array_equal(np.asarray(lazy), eager)
-    assert isinstance(known_view_features(ext, images), np.ndarray)     # this machine: far below the share

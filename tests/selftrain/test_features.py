@@ -141,3 +141,19 @@ def test_factory_and_input_checks(natural):
         VGG19Features(weights="random")(np.zeros((1, 4, 4, 3), np.float32))  # too small for VGG
     with pytest.raises(ValueError):
         VGG19Features(weights="imagenet21k")
+
+
+def test_known_view_features_are_lazy_only_beyond_the_memory_share():
+    """Full-size known features while they fit the share of memory (the values either way are equal)."""
+    from senerf.selftrain import LazyViewFeatures, known_view_features, make_feature_extractor
+    from senerf.selftrain.features import EAGER_FEATURES_MEMORY_SHARE
+
+    ext = make_feature_extractor("vgg19")
+    images = np.random.default_rng(0).random((2, 16, 20, 3), dtype=np.float32)
+    full_bytes = 4 * 2 * 16 * 20 * ext.channels
+    share = EAGER_FEATURES_MEMORY_SHARE
+    eager = known_view_features(ext, images, memory_bytes=int(full_bytes / share) + 1)
+    lazy = known_view_features(ext, images, memory_bytes=int(full_bytes / share) - 1)
+    assert isinstance(eager, np.ndarray) and isinstance(lazy, LazyViewFeatures)
+    np.testing.assert_array_equal(np.asarray(lazy), eager)
+    assert isinstance(known_view_features(ext, images), np.ndarray)     # this machine: far below the share

@@ -76,3 +76,25 @@ def test_config_validation():
     with pytest.raises(InputError):
         preset_train_config("turbo")
     assert preset_train_config("fast", steps=3).steps == 3
+
+
+def test_settings_differences_names_each_setting_by_its_dotted_path():
+    from senerf.train import settings_differences
+
+    stored = {"train": {"seed": 0, "lr": 0.01}, "model": {"aabb": [[-1, -1, -1], [1, 1, 1]]}, "extra": {}}
+    assert settings_differences(stored, stored) == []
+    current = {"train": {"seed": 1, "lr": 0.01}, "model": {"aabb": [[-1, -1, -1], [1, 1, 2]]}, "extra": {}}
+    # sorted by name; lists are compared whole; values written as JSON
+    assert settings_differences(stored, current) == [
+        "model.aabb: [[-1, -1, -1], [1, 1, 1]] in the folder, [[-1, -1, -1], [1, 1, 2]] now",
+        "train.seed: 0 in the folder, 1 now"]
+    # tuples and numpy scalars compare as the JSON they are written as
+    assert settings_differences({"a": [1, 2], "b": 0.5}, {"a": (1, 2), "b": np.float64(0.5)}) == []
+    # a setting the folder lacks: no difference only at the value registered for it
+    assert settings_differences({"t": {}}, {"t": {"k": "x"}}) == ['t.k: absent in the folder, "x" now']
+    assert settings_differences({"t": {"j": 1}}, {"t": {"j": 1, "k": "x"}}, added={"t.k": "x"}) == []
+    assert settings_differences({"t": {"j": 1}}, {"t": {"j": 1, "k": "y"}}, added={"t.k": "x"}) == [
+        't.k: absent in the folder, "y" now']
+    # one the current run lacks is always a difference
+    assert settings_differences({"t": {"j": 1, "k": "x"}}, {"t": {"j": 1}}, added={"t.k": "x"}) == [
+        't.k: "x" in the folder, absent now']
