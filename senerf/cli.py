@@ -122,6 +122,8 @@ def build_parser() -> argparse.ArgumentParser:
                         f"(default {PSEUDO_RANGE_DEFAULT:g}, the paper's)")
     s.add_argument("--pseudo-range-step", type=_float("--pseudo-range-step", 0.0), default=None, metavar="DEG",
                    help=f"widening of that range per later iteration (default {PSEUDO_RANGE_STEP_DEFAULT:g})")
+    s.add_argument("--pseudo-views", type=_positive_int("--pseudo-views"), default=None, metavar="N",
+                   help=f"pseudo views per input view and iteration (default {PSEUDO_VIEWS_DEFAULT})")
     s.add_argument("--batch-empty", type=_positive_int("--batch-empty", allow_zero=True), default=None, metavar="N",
                    help="empty-space pseudo rays per step drawn apart from the reliable surface rays (0: one "
                         f"shared pool; default {BATCH_EMPTY_DEFAULT})")
@@ -146,6 +148,7 @@ EMPTY_OPACITY_DEFAULT = 0.2
 #: SelfTrainConfig.pseudo_range_deg / pseudo_range_step_deg defaults, likewise repeated and tested
 PSEUDO_RANGE_DEFAULT = 10.0
 PSEUDO_RANGE_STEP_DEFAULT = 5.0
+PSEUDO_VIEWS_DEFAULT = 8
 #: SelfTrainConfig.batch_empty / student_grid defaults, likewise
 BATCH_EMPTY_DEFAULT = 0
 STUDENT_GRID_DEFAULT = "teacher"
@@ -161,7 +164,8 @@ def _selftrain_overrides(args) -> dict:
     """SelfTrainConfig fields given on the command line (absent ones keep the config's defaults, and stay
     out of the resume fingerprint so runs made before a flag existed still resume)."""
     pairs = (("empty_opacity", args.empty_opacity), ("pseudo_range_deg", args.pseudo_range),
-             ("pseudo_range_step_deg", args.pseudo_range_step), ("batch_empty", args.batch_empty),
+             ("pseudo_range_step_deg", args.pseudo_range_step), ("n_pseudo_per_input", args.pseudo_views),
+             ("batch_empty", args.batch_empty),
              ("student_grid", args.student_grid))
     return {k: v for k, v in pairs if v is not None}
 

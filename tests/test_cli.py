@@ -108,9 +108,10 @@ def test_tiny_end_to_end_fit_resume_and_overwrite(tiny_scene, tmp_path, capsys):
 
 def test_help_states_the_selftraining_defaults():
     from senerf.cli import (BATCH_EMPTY_DEFAULT, EMPTY_OPACITY_DEFAULT, PSEUDO_RANGE_DEFAULT,
-                            PSEUDO_RANGE_STEP_DEFAULT, STUDENT_GRID_DEFAULT)
+                            PSEUDO_RANGE_STEP_DEFAULT, PSEUDO_VIEWS_DEFAULT, STUDENT_GRID_DEFAULT)
     from senerf.selftrain import SelfTrainConfig
 
+    assert SelfTrainConfig().n_pseudo_per_input == PSEUDO_VIEWS_DEFAULT
     assert SelfTrainConfig().empty_opacity == EMPTY_OPACITY_DEFAULT
     assert SelfTrainConfig().pseudo_range_deg == PSEUDO_RANGE_DEFAULT
     assert SelfTrainConfig().pseudo_range_step_deg == PSEUDO_RANGE_STEP_DEFAULT
@@ -132,6 +133,7 @@ def test_preset_names_agree_across_the_cli_the_trainer_and_the_harness():
     (["--pseudo-range", "15", "--pseudo-range-step", "20", "--empty-opacity", "0"],
      {"pseudo_range_deg": 15.0, "pseudo_range_step_deg": 20.0, "empty_opacity": 0.0}),
     (["--batch-empty", "256", "--student-grid", "none"], {"batch_empty": 256, "student_grid": "none"}),
+    (["--pseudo-views", "32"], {"n_pseudo_per_input": 32}),
 ])
 def test_selftraining_flags_reach_the_config(tiny_scene, tmp_path, monkeypatch, flags, expected):
     import senerf.cli as cli
@@ -149,6 +151,7 @@ def test_selftraining_flags_reach_the_config(tiny_scene, tmp_path, monkeypatch, 
     (cfg,) = seen
     assert cfg.iterations == 2
     defaults = SelfTrainConfig()
-    for field in ("pseudo_range_deg", "pseudo_range_step_deg", "empty_opacity", "batch_empty", "student_grid"):
+    for field in ("pseudo_range_deg", "pseudo_range_step_deg", "empty_opacity", "batch_empty", "student_grid",
+                  "n_pseudo_per_input"):
         assert getattr(cfg, field) == expected.get(field, getattr(defaults, field)), field
     assert cfg.pseudo_range(2) == cfg.pseudo_range_deg + cfg.pseudo_range_step_deg

@@ -200,6 +200,9 @@ METHODS: dict[str, Method] = {m.name: m for m in (
            "512 empty-space rays per step drawn apart from 512 reliable surface rays (default: one pool)"),
     Method("senerf-oracle", ("--reliability", "oracle"), True,
            "analysis: held-out dataset views as pseudo views, masks from ground-truth colour (paper Fig. 1)"),
+    Method("senerf-oracle-all", ("--reliability", "oracle", "--pseudo-range", "180", "--pseudo-views", "32"), True,
+           "analysis: the oracle with 32 held-out views per input from anywhere (96 of lego's 197: the whole "
+           "hemisphere), a bound on what reliability masks and pseudo-view range can buy"),
 )}
 
 
