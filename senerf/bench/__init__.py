@@ -8,9 +8,9 @@ and :mod:`senerf.bench.results` for the line schema.  No torch import.
 from .execute import RunnerConfig, check_protocol, default_fit_command, execute_run, parse_metrics
 from .executors import Executor, LocalExecutor, RayExecutor, make_executor
 from .machine import git_commit, machine_info
-from .ladder import (Contrast, Rung, contrasts_markdown, ladder_markdown, method_contrasts, paired_gain_p_value,
-                     preset_ladder)
-from .plots import (line_view_angles, nearest_view_angles, plot_frontier, plot_iterations,
+from .ladder import (Contrast, Rung, TeacherFit, contrasts_markdown, ladder_markdown, method_contrasts,
+                     paired_gain_p_value, preset_ladder, teacher_dependence, teacher_dependence_markdown)
+from .plots import (line_view_angles, nearest_view_angles, plot_frontier, plot_gain_vs_teacher, plot_iterations,
                     plot_mask_quality, plot_psnr_vs_angle)
 from .protocols import METHODS, Method, Protocol, get_method, native_size, parse_protocol
 from .report import PAPER_NUMBERS, PaperRow, make_report, paper_rows
@@ -30,6 +30,7 @@ __all__ = [
     "PaperRow", "PAPER_NUMBERS", "paper_rows", "make_report",
     "plot_frontier", "plot_iterations", "nearest_view_angles", "line_view_angles", "plot_psnr_vs_angle",
     "plot_mask_quality", "Rung", "preset_ladder", "paired_gain_p_value", "ladder_markdown",
-    "Contrast", "method_contrasts", "contrasts_markdown",
+    "Contrast", "method_contrasts", "contrasts_markdown", "TeacherFit", "teacher_dependence",
+    "teacher_dependence_markdown", "plot_gain_vs_teacher",
     "git_commit", "machine_info",
 ]

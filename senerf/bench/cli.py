@@ -29,7 +29,8 @@ from senerf.errors import InputError
 
 from .execute import RunnerConfig
 from .executors import make_executor
-from .plots import line_view_angles, plot_frontier, plot_iterations, plot_psnr_vs_angle
+from .ladder import teacher_dependence
+from .plots import line_view_angles, plot_frontier, plot_gain_vs_teacher, plot_iterations, plot_psnr_vs_angle
 from .protocols import METHODS, parse_protocol
 from .report import make_report, mask_quality_section
 from .results import final_ok_lines, load_results
@@ -222,7 +223,8 @@ def splice_report(document: str, report: str, path: Path | str = "document") -> 
 
 
 def _cmd_plot(args: argparse.Namespace) -> int:
-    aggs = aggregate(_load(args.results))
+    records = _load(args.results)
+    aggs = aggregate(records)
     if not aggs:
         raise InputError("no finished runs to plot", file=args.results)
     out = Path(args.out_dir)
@@ -231,6 +233,11 @@ def _cmd_plot(args: argparse.Namespace) -> int:
         stem = f"{scene}_{protocol.replace('@', '_at_')}"
         for path in (plot_frontier(group, out / f"frontier_{stem}.png", f"{scene} {protocol}: PSNR vs cost"),
                      plot_iterations(group, out / f"iterations_{stem}.png", f"{scene} {protocol}")):
+            print(f"wrote {path}")
+        fits = [f for f in teacher_dependence(records) if (f.scene, f.protocol, f.method) == (scene, protocol, "senerf")]
+        if fits:
+            path = plot_gain_vs_teacher(fits, out / f"gain_vs_teacher_{stem}.png",
+                                        f"{scene} {protocol}: SE-NeRF's gain over its teacher, per run")
             print(f"wrote {path}")
     return 0
 

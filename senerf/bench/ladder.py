@@ -21,11 +21,12 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import stats
 
-from .results import final_ok_lines
+from .results import final_ok_lines, latest_ok_lines
 from .summary import Stat, preset_label
 
 __all__ = ["Rung", "preset_ladder", "paired_gain_p_value", "ladder_markdown", "LADDER_ALPHA", "LADDER_MIN_SEEDS",
-           "Contrast", "method_contrasts", "contrasts_markdown"]
+           "Contrast", "method_contrasts", "contrasts_markdown", "TeacherFit", "teacher_dependence",
+           "teacher_dependence_markdown"]
 
 LADDER_ALPHA = 0.05
 LADDER_MIN_SEEDS = 3
@@ -192,4 +193,100 @@ def contrasts_markdown(contrasts: list[Contrast]) -> list[str]:
     for c in contrasts:
         p = "-" if c.p_value is None else f"{c.p_value:.3f}"
         out.append(f"| {c.scene} | {c.rung} | {c.method} | {c.reference} | {len(c.seeds)} | {c.diff.text(2)} | {p} |")
+    return out
+
+
+@dataclass(frozen=True)
+class TeacherFit:
+    """How a self-training rung's gain over its own teacher depends on that teacher, over its runs.
+
+    One point per run (seed): ``x`` = the teacher's PSNR (iteration 0 of the same run), ``y`` = the final
+    iteration's PSNR minus it.  A least-squares line ``y = intercept + slope * x`` with Pearson's ``r`` and
+    the two-sided p-value of a zero slope (``scipy.stats.linregress``).  A slope near -1 means the final PSNR
+    does not depend on the teacher (the gain is what the teacher lacked); near 0, a fixed gain.
+
+    Attributes:
+        scene, protocol, method, rung: the group (rung label ``"balanced K=3"``).
+        seeds: (n,) the runs' seeds; teacher_psnr, gain: (n,) tuples of floats, in seed order.
+        slope, intercept, r, p_value: the fit (``p_value`` None with fewer than 3 runs, ``r`` and slope None
+            when the teachers' PSNR does not vary).
+    """
+
+    scene: str
+    protocol: str
+    method: str
+    rung: str
+    seeds: tuple[int, ...]
+    teacher_psnr: tuple[float, ...]
+    gain: tuple[float, ...]
+    slope: float | None
+    intercept: float | None
+    r: float | None
+    p_value: float | None
+
+    def gain_at(self, teacher_psnr: float) -> float | None:
+        """The fitted gain for a teacher of ``teacher_psnr`` dB (None without a fit)."""
+        return None if self.slope is None else self.intercept + self.slope * float(teacher_psnr)
+
+
+def teacher_dependence(records: list[dict]) -> list[TeacherFit]:
+    """A :class:`TeacherFit` per self-training rung (scene, protocol, method, preset label, K > 0) with at
+    least 2 runs that have both their teacher and their final iteration; sorted by group.
+
+    Example:
+        >>> lines = [dict(run_key=f"k{s}", status="ok", attempt="a", scene="lego", protocol="p", method="m",
+        ...               preset="fast", seed=s, iterations=1, iteration=i, psnr=psnr)
+        ...          for s, t in enumerate((15.0, 16.0, 17.0)) for i, psnr in ((0, t), (1, 17.5))]
+        >>> fit, = teacher_dependence(lines)
+        >>> round(fit.slope, 6), round(fit.gain_at(14.0), 6)      # a final PSNR independent of the teacher
+        (-1.0, 3.5)
+    """
+    runs: dict[str, dict[int, dict]] = defaultdict(dict)
+    for r in latest_ok_lines(records):
+        runs[r["run_key"]][int(r["iteration"])] = r
+    groups: dict[tuple, list[tuple[int, float, float]]] = defaultdict(list)
+    for its in runs.values():
+        k = max(its)
+        final = its[k]
+        if k == 0 or k != int(final.get("iterations", 0)) or 0 not in its:
+            continue
+        key = (final["scene"], final["protocol"], final["method"], f"{preset_label(final)} K={k}")
+        groups[key].append((int(final["seed"]), float(its[0]["psnr"]), float(final["psnr"]) - float(its[0]["psnr"])))
+    out = []
+    for (scene, protocol, method, rung), points in sorted(groups.items()):
+        if len(points) < 2:
+            continue
+        points.sort()
+        x = np.array([p[1] for p in points])
+        y = np.array([p[2] for p in points])
+        slope = intercept = r = p = None
+        if float(np.ptp(x)) > 0:
+            fit = stats.linregress(x, y)
+            slope, intercept, r = float(fit.slope), float(fit.intercept), float(fit.rvalue)
+            p = float(fit.pvalue) if len(points) >= 3 else None
+        out.append(TeacherFit(scene, protocol, method, rung, tuple(p_[0] for p_ in points), tuple(x.tolist()),
+                              tuple(y.tolist()), slope, intercept, r, p))
+    return out
+
+
+def teacher_dependence_markdown(fits: list[TeacherFit]) -> list[str]:
+    """Markdown lines: one row per fit with at least 3 runs (empty list when there are none)."""
+    fits = [f for f in fits if len(f.seeds) >= 3]
+    if not fits:
+        return []
+    out = ["", "Gain over the teacher against the teacher's PSNR, one point per run (seed): least-squares line "
+           "gain = a + b * teacher, Pearson's r, two-sided p of b = 0 (b = -1: the final PSNR does not depend "
+           "on the teacher; b = 0: a fixed gain). Plot: `gain_vs_teacher_*.png` (`senerf-bench plot`).", "",
+           "| scene | rung | method | runs | teacher PSNR | gain | b (dB/dB) | r | p | fitted gain at teacher "
+           "mean - 1 dB / mean + 1 dB |", "|" + "---|" * 10]
+    for f in fits:
+        t, g = Stat.of(list(f.teacher_psnr)), Stat.of(list(f.gain))
+        if f.slope is None:
+            b = r = p = at = "-"
+        else:
+            b, r = f"{f.slope:+.2f}", f"{f.r:+.2f}"
+            p = "-" if f.p_value is None else f"{f.p_value:.3f}"
+            at = f"{f.gain_at(t.mean - 1.0):+.2f} / {f.gain_at(t.mean + 1.0):+.2f}"
+        out.append(f"| {f.scene} | {f.rung} | {f.method} | {len(f.seeds)} | {t.text(2)} | {g.text(2)} | {b} | {r} | "
+                   f"{p} | {at} |")
     return out

@@ -6,6 +6,8 @@
 * :func:`plot_psnr_vs_angle` (+ :func:`nearest_view_angles`, :func:`line_view_angles`): per-test-view PSNR
   against the angle to the nearest training camera.  ``metrics.json`` gives per-view PSNR and the view
   indices; the poses come from the scene (``senerf-bench angles`` loads it), no fit hook needed.
+* :func:`plot_gain_vs_teacher`: each self-training run's gain over its own teacher against that teacher's
+  PSNR, with the least-squares line per rung (:func:`senerf.bench.ladder.teacher_dependence`).
 * :func:`plot_mask_quality`: reliability-mask precision / recall / false-positive rate per feature
   extractor and threshold (rows from ``benchmarks/bench_selftrain.py masks``, which scores the masks with
   :func:`senerf.selftrain.reliability.mask_quality` against masks from ground-truth colour).
@@ -25,7 +27,7 @@ from senerf.geometry import nearest_view_angles  # re-exported: the bench's angl
 from .summary import PRESET_ORDER, Aggregate
 
 __all__ = ["plot_frontier", "plot_iterations", "nearest_view_angles", "line_view_angles", "plot_psnr_vs_angle",
-           "plot_mask_quality"]
+           "plot_gain_vs_teacher", "plot_mask_quality"]
 
 
 
@@ -187,6 +189,33 @@ def plot_psnr_vs_angle(angles_deg: dict[str, np.ndarray], psnr: dict[str, np.nda
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8)
     ax.set_title(title or "PSNR vs distance from the training views", fontsize=9)
+    return _save(fig, path)
+
+
+def plot_gain_vs_teacher(fits: list, path: str | Path, title: str = "") -> Path:
+    """Gain over the teacher (final - iteration 0, dB) against the teacher's PSNR: one point per run, one
+    colour and fitted line per :class:`senerf.bench.ladder.TeacherFit` (method and rung), legend outside.
+
+    Args:
+        fits: TeacherFit records (e.g. of one method, all its rungs).
+        path: output PNG.
+    """
+    fig = Figure(figsize=(6.4, 4.4))
+    ax = fig.subplots()
+    for fit, colour in zip(fits, _distinct_colours(len(fits))):
+        x, y = np.asarray(fit.teacher_psnr), np.asarray(fit.gain)
+        label = f"{fit.method} {fit.rung} (n={len(fit.seeds)}"
+        label += ")" if fit.slope is None else f", b={fit.slope:+.2f}, r={fit.r:+.2f})"
+        ax.scatter(x, y, s=18, color=colour, label=label)
+        if fit.slope is not None:
+            xs = np.array([x.min(), x.max()])
+            ax.plot(xs, fit.intercept + fit.slope * xs, "-", lw=1, color=colour)
+    ax.axhline(0.0, color="0.5", lw=0.8)
+    ax.set_xlabel("teacher (iteration 0) PSNR (dB)")
+    ax.set_ylabel("final - teacher PSNR (dB)")
+    ax.grid(alpha=0.3)
+    ax.set_title(title or "Gain over the teacher vs the teacher", fontsize=9)
+    _legend_outside(fig, ax)
     return _save(fig, path)
 
 

@@ -11,7 +11,8 @@ import datetime as _dt
 import shlex
 from dataclasses import dataclass
 
-from .ladder import contrasts_markdown, ladder_markdown, method_contrasts, preset_ladder
+from .ladder import (contrasts_markdown, ladder_markdown, method_contrasts, preset_ladder, teacher_dependence,
+                     teacher_dependence_markdown)
 from .protocols import parse_protocol
 from .results import latest_ok_lines
 from .summary import Aggregate, aggregate, final_iterations
@@ -116,6 +117,7 @@ def _protocol_block(protocol: str, lines: list[dict], aggs: list[Aggregate]) -> 
     out += _mean_rows(proto.family, aggs)
     out += ladder_markdown(preset_ladder(lines))
     out += contrasts_markdown(method_contrasts(lines))
+    out += teacher_dependence_markdown(teacher_dependence(lines))
     selftrain = [a for a in aggs if a.iterations > 0]
     if selftrain:
         out += ["", "Per self-training iteration (0 = teacher):", "",

@@ -81,7 +81,7 @@ def test_run_resume_summarize_report_plot(blender_scene, fake_fit_command, tmp_p
 
     assert main(["plot", str(out / "results.jsonl"), "--out-dir", str(tmp_path / "plots")]) == 0
     pngs = sorted((tmp_path / "plots").glob("*.png"))
-    assert [p.name.split("_")[0] for p in pngs] == ["frontier", "iterations"]
+    assert [p.name.split("_")[0] for p in pngs] == ["frontier", "gain", "iterations"]
     assert all(iio.imread(p).ndim == 3 for p in pngs)
 
 

@@ -7,7 +7,7 @@ import math
 import pytest
 
 from senerf.bench.ladder import (contrasts_markdown, ladder_markdown, method_contrasts, paired_gain_p_value,
-                                 preset_ladder)
+                                 preset_ladder, teacher_dependence, teacher_dependence_markdown)
 
 
 def _line(seed, preset, psnr, seconds, k=1, iteration=None, method="senerf", status="ok"):
@@ -87,3 +87,45 @@ def test_method_contrasts_pair_ablations_with_the_reference():
     md = "\n".join(contrasts_markdown([c]))
     assert "| lego | fast K=1 | senerf-no-empty | senerf | 3 | -2.00 ± 1.00 | 0.074 |" in md
     assert contrasts_markdown([]) == []
+
+
+def _run(seed, teacher, final, k=1, preset="fast", method="senerf", attempt="a", last=None):
+    """The lines of one run: its teacher (iteration 0) and iterations 1..``last`` (default k) at ``final``."""
+    return [{**_line(seed, preset, teacher if i == 0 else final, 10.0 * (i + 1), k=k, iteration=i, method=method),
+             "attempt": attempt} for i in range((last if last is not None else k) + 1)]
+
+
+def test_teacher_dependence_fits_gain_against_teacher_by_hand():
+    # teachers 15, 16, 17 dB; gains 3, 2, 1.5 (finals 18, 18, 18.5)
+    lines = _run(0, 15.0, 18.0) + _run(1, 16.0, 18.0) + _run(2, 17.0, 18.5)
+    (fit,) = teacher_dependence(lines)
+    assert (fit.method, fit.rung, fit.seeds) == ("senerf", "fast K=1", (0, 1, 2))
+    assert fit.teacher_psnr == (15.0, 16.0, 17.0) and fit.gain == (3.0, 2.0, 1.5)
+    # by hand: Sxx = 2, Sxy = -1.5, Syy = 7/6; slope -0.75, intercept 13/6 + 12 = 85/6, r = -1.5 / sqrt(7/3)
+    assert fit.slope == pytest.approx(-0.75) and fit.intercept == pytest.approx(85 / 6)
+    r = -1.5 / math.sqrt(7 / 3)
+    assert fit.r == pytest.approx(r)
+    # the slope's two-sided p: t = r sqrt(n - 2) / sqrt(1 - r^2) with 1 dof, p = 1 - 2 atan(|t|) / pi
+    t = r / math.sqrt(1 - r * r)
+    assert fit.p_value == pytest.approx(1 - 2 * math.atan(abs(t)) / math.pi, rel=1e-9)
+    assert fit.gain_at(14.0) == pytest.approx(85 / 6 - 0.75 * 14)
+
+
+def test_teacher_dependence_groups_and_skips():
+    lines = (_run(0, 15.0, 17.0) + _run(1, 16.0, 17.5)                          # two runs: a fit, no p
+             + _run(0, 15.0, 18.0, k=3, preset="balanced") + _run(1, 15.0, 18.2, k=3, preset="balanced")
+             + _run(2, 16.0, 17.0, k=1, method="baseline")[:1]                   # a baseline: never
+             + _run(3, 16.0, 17.0, k=3, preset="balanced", last=2)               # unfinished: left out
+             + _run(4, 17.0, 99.0, attempt="old") + _run(4, 17.0, 17.4, attempt="new"))   # last attempt wins
+    for line in lines:
+        if line["method"] == "baseline":
+            line.update(iterations=0, iteration=0)
+    fits = {(f.method, f.rung): f for f in teacher_dependence(lines)}
+    assert set(fits) == {("senerf", "fast K=1"), ("senerf", "balanced K=3")}
+    fast = fits[("senerf", "fast K=1")]
+    assert fast.seeds == (0, 1, 4) and fast.gain == pytest.approx((2.0, 1.5, 0.4)) and fast.p_value is not None
+    balanced = fits[("senerf", "balanced K=3")]
+    assert balanced.seeds == (0, 1) and balanced.slope is None and balanced.p_value is None   # equal teachers
+    rows = [r for r in teacher_dependence_markdown(list(fits.values())) if r.startswith("| lego")]
+    assert len(rows) == 1 and "| fast K=1 | senerf | 3 |" in rows[0]                 # only fits of >= 3 runs
+    assert teacher_dependence_markdown([balanced]) == []

@@ -6,7 +6,7 @@ import imageio.v3 as iio
 import numpy as np
 import pytest
 
-from senerf.bench.plots import nearest_view_angles, plot_mask_quality, plot_psnr_vs_angle
+from senerf.bench.plots import nearest_view_angles, plot_gain_vs_teacher, plot_mask_quality, plot_psnr_vs_angle
 
 
 def _pose_at(center):
@@ -34,7 +34,13 @@ def test_analysis_plots_write_pngs(tmp_path):
              "fpr": rng.random()}
             for f in ("vgg19", "daisy") for t in ("adaptive", "fixed")]
     p2 = plot_mask_quality(recs, tmp_path / "mask.png")
-    for p in (p1, p2):
+    from senerf.bench.ladder import TeacherFit
+
+    fits = [TeacherFit("lego", "p", "senerf", "fast K=1", (0, 1, 2), (15.0, 16.0, 17.0), (3.0, 2.0, 1.5),
+                       -0.75, 85 / 6, -0.98, 0.12),
+            TeacherFit("lego", "p", "senerf", "balanced K=3", (0, 1), (15.0, 15.0), (3.0, 3.2), None, None, None, None)]
+    p3 = plot_gain_vs_teacher(fits, tmp_path / "gain.png")
+    for p in (p1, p2, p3):
         assert iio.imread(p).shape[-1] in (3, 4)
     with pytest.raises(ValueError):
         plot_psnr_vs_angle({"x": a}, {"x": a[:3]}, tmp_path / "bad.png")
