@@ -82,30 +82,37 @@ class FeatureExtractor:
     def __call__(self, images: np.ndarray) -> np.ndarray:  # pragma: no cover - interface
         raise NotImplementedError
 
-    def lazy(self, images: np.ndarray):
+    def lazy(self, images: np.ndarray, keep: int = 0):
         """The features of ``images (n, H, W, 3)`` for access one view at a time: anything with ``shape``
-        ``(n, H, W, C)``, ``ndim`` and ``[j] -> (H, W, C)`` float32 equal to ``self(images)[j]``.  This
-        default computes them all now (an ndarray); :class:`VGG19Features` defers the full-size maps."""
+        ``(n, H, W, C)``, ``ndim`` and ``[j] -> (H, W, C)`` float32 equal to ``self(images)[j]``, holding at
+        most ``keep`` views' full-size features once built (the first ``keep``).  This default computes
+        them all now (an ndarray); :class:`VGG19Features` defers the full-size maps."""
         return self(images)
 
 
 class LazyViewFeatures:
-    """Features of ``n`` views, each computed in full only when indexed (and not kept).
+    """Features of ``n`` views, each computed in full only when indexed; views ``0 .. keep - 1`` are kept
+    once built, the others built again on every access.
 
     Args:
         expand: ``j -> (H, W, C)`` float32 features of view ``j``.
         shape: ``(n, H, W, C)``.
+        keep: how many views' full-size features may be held (0: none; ``n``: all, once each is read).
 
     ``len``, ``shape``, ``ndim`` and ``[j]`` (an integer) behave as for the ``(n, H, W, C)`` array;
     ``numpy.asarray`` builds that array (all views at once, what this class exists to avoid).
     """
 
-    def __init__(self, expand, shape: tuple):
+    def __init__(self, expand, shape: tuple, keep: int = 0):
         if len(shape) != 4:
             raise ValueError(f"shape must be (n, H, W, C), got {shape}")
+        if int(keep) < 0:
+            raise ValueError(f"keep must be >= 0, got {keep}")
         self._expand = expand
         self.shape = tuple(int(d) for d in shape)
         self.ndim = 4
+        self.keep = min(int(keep), self.shape[0])
+        self._kept: dict[int, np.ndarray] = {}
 
     def __len__(self) -> int:
         return self.shape[0]
@@ -114,7 +121,14 @@ class LazyViewFeatures:
         j = int(j)
         if not -self.shape[0] <= j < self.shape[0]:
             raise IndexError(f"view {j} of {self.shape[0]}")
-        return self._expand(j % self.shape[0])
+        j %= self.shape[0]
+        if j in self._kept:
+            return self._kept[j]
+        out = self._expand(j)
+        if j < self.keep:
+            out.flags.writeable = False          # shared by every later access
+            self._kept[j] = out
+        return out
 
     def __array__(self, dtype=None, copy=None) -> np.ndarray:
         out = np.stack([self[j] for j in range(self.shape[0])])
@@ -222,9 +236,10 @@ class VGG19Features(FeatureExtractor):
                 self._expand_into(out[start + j], [m[j:j + 1] for m in maps])
         return out
 
-    def lazy(self, images: np.ndarray) -> LazyViewFeatures:
+    def lazy(self, images: np.ndarray, keep: int = 0) -> LazyViewFeatures:
         """:meth:`FeatureExtractor.lazy`: the raw maps now (in the same batches as ``__call__``), each view's
-        upsampled, normalised features when it is indexed: equal to ``self(images)[j]``, bit for bit."""
+        upsampled, normalised features when it is indexed (the first ``keep`` views' kept once built): equal
+        to ``self(images)[j]``, bit for bit."""
         images = _check_images(images)
         n, h, w, _ = images.shape
         self._check_size(h, w)
@@ -238,7 +253,7 @@ class VGG19Features(FeatureExtractor):
             self._expand_into(out, per_view[j])
             return out
 
-        return LazyViewFeatures(expand, (n, h, w, self.channels))
+        return LazyViewFeatures(expand, (n, h, w, self.channels), keep=keep)
 
     @staticmethod
     def _check_size(h: int, w: int) -> None:
@@ -308,24 +323,27 @@ def make_feature_extractor(name: str, **kwargs) -> FeatureExtractor:
 
 
 #: Known-view features are held at full size while they take at most this share of the machine's memory;
-#: beyond it they are built one view at a time on access (:meth:`FeatureExtractor.lazy`: the same values,
-#: 1/8 of the memory for VGG-19, but each known view is upsampled again for every pseudo view: on fern,
-#: 3 views at 504x378 with the fast preset and 50 student steps, peak RSS 4.0 instead of 5.2 GiB and the
-#: iteration 513 instead of 358 s, each run alone on the machine, BENCHMARKS.md).
+#: beyond it the views that fit in the share are kept once built and the others are built again on every
+#: access (:meth:`FeatureExtractor.lazy`: the same values, 1/8 of the memory for VGG-19's views not kept,
+#: but each of them is upsampled again for every pseudo view: on fern, 3 views at 504x378 with the fast
+#: preset and 50 student steps, none kept, peak RSS 4.0 instead of 5.2 GiB and the iteration 513 instead
+#: of 358 s, each run alone on the machine, BENCHMARKS.md).
 EAGER_FEATURES_MEMORY_SHARE = 0.25
 
 
 def known_view_features(extractor, images: np.ndarray, memory_bytes: int | None = None):
     """Features of the known ``images (m, H, W, 3)``: the full ``(m, H, W, C)`` array when it takes at most
     :data:`EAGER_FEATURES_MEMORY_SHARE` of ``memory_bytes`` (default: the machine's physical memory; the
-    array when that is unknown), else ``extractor.lazy(images)``.  Both give the same values."""
+    array when that is unknown), else ``extractor.lazy(images, keep=k)`` with ``k`` the number of views
+    whose full-size features fit in that share.  All give the same values."""
     if memory_bytes is None:
         try:
             memory_bytes = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
         except (AttributeError, ValueError, OSError):
             return extractor(images)
     m, h, w = np.shape(images)[:3]
-    full_bytes = 4 * m * h * w * int(extractor.channels)
-    if full_bytes <= EAGER_FEATURES_MEMORY_SHARE * memory_bytes:
+    view_bytes = 4 * h * w * int(extractor.channels)
+    fits = int(EAGER_FEATURES_MEMORY_SHARE * memory_bytes // view_bytes)
+    if fits >= m:
         return extractor(images)
-    return extractor.lazy(images)
+    return extractor.lazy(images, keep=fits)

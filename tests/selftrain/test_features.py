@@ -144,16 +144,40 @@ def test_factory_and_input_checks(natural):
 
 
 def test_known_view_features_are_lazy_only_beyond_the_memory_share():
-    """Full-size known features while they fit the share of memory (the values either way are equal)."""
+    """Full-size known features while they fit the share of memory; beyond, as many views as fit are kept
+    once built (the values either way are equal)."""
     from senerf.selftrain import LazyViewFeatures, known_view_features, make_feature_extractor
     from senerf.selftrain.features import EAGER_FEATURES_MEMORY_SHARE
 
     ext = make_feature_extractor("vgg19")
-    images = np.random.default_rng(0).random((2, 16, 20, 3), dtype=np.float32)
-    full_bytes = 4 * 2 * 16 * 20 * ext.channels
+    images = np.random.default_rng(0).random((3, 16, 20, 3), dtype=np.float32)
+    view_bytes = 4 * 16 * 20 * ext.channels
     share = EAGER_FEATURES_MEMORY_SHARE
-    eager = known_view_features(ext, images, memory_bytes=int(full_bytes / share) + 1)
-    lazy = known_view_features(ext, images, memory_bytes=int(full_bytes / share) - 1)
-    assert isinstance(eager, np.ndarray) and isinstance(lazy, LazyViewFeatures)
-    np.testing.assert_array_equal(np.asarray(lazy), eager)
+    eager = known_view_features(ext, images, memory_bytes=int(3 * view_bytes / share) + 1)
+    assert isinstance(eager, np.ndarray)
+    for fit, memory in ((2, int(3 * view_bytes / share) - 1), (1, int(2 * view_bytes / share) - 1),
+                        (0, int(view_bytes / share) - 1)):
+        lazy = known_view_features(ext, images, memory_bytes=memory)
+        assert isinstance(lazy, LazyViewFeatures) and lazy.keep == fit
+        np.testing.assert_array_equal(np.asarray(lazy), eager)
     assert isinstance(known_view_features(ext, images), np.ndarray)     # this machine: far below the share
+
+
+def test_lazy_view_features_keep_the_first_views_once_built():
+    from senerf.selftrain import LazyViewFeatures
+
+    built = []
+
+    def expand(j):
+        built.append(j)
+        return np.full((2, 3, 4), float(j), dtype=np.float32)
+
+    lazy = LazyViewFeatures(expand, (3, 2, 3, 4), keep=2)
+    for _ in range(3):
+        for j in (0, 1, 2, -1):
+            assert lazy[j][0, 0, 0] == float(j % 3)
+    assert built == [0, 1, 2, 2, 2, 2, 2, 2]            # views 0 and 1 once; view 2 on every access
+    assert lazy[0] is lazy[0] and not lazy[0].flags.writeable
+    assert LazyViewFeatures(expand, (3, 2, 3, 4), keep=9).keep == 3
+    with pytest.raises(ValueError):
+        LazyViewFeatures(expand, (3, 2, 3, 4), keep=-1)
