@@ -326,8 +326,8 @@ def make_feature_extractor(name: str, **kwargs) -> FeatureExtractor:
 #: beyond it the views that fit in the share are kept once built and the others are built again on every
 #: access (:meth:`FeatureExtractor.lazy`: the same values, 1/8 of the memory for VGG-19's views not kept,
 #: but each of them is upsampled again for every pseudo view: on fern, 3 views at 504x378 with the fast
-#: preset and 50 student steps, none kept, peak RSS 4.0 instead of 5.2 GiB and the iteration 513 instead
-#: of 358 s, each run alone on the machine, BENCHMARKS.md).
+#: preset and 50 student steps, peak RSS / iteration: all held 5.2 GiB / 358 s, 2 of 3 kept 4.7 GiB /
+#: 421 s, none kept 4.0 GiB / 513 s, each run alone on the machine, BENCHMARKS.md).
 EAGER_FEATURES_MEMORY_SHARE = 0.25
 
 
