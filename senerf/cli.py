@@ -205,7 +205,7 @@ def _check_device(device: str) -> str:
 
 def _prepare_out(out: Path, identity: dict, overwrite: bool) -> None:
     """Refuse a folder holding another run (unless ``overwrite``); record this run's identity."""
-    from senerf.train import atomic_write_text, settings_differences
+    from senerf.train import atomic_write_text, differences_text, settings_differences
 
     run_file = out / _RUN_FILE
     if run_file.exists():
@@ -216,7 +216,7 @@ def _prepare_out(out: Path, identity: dict, overwrite: bool) -> None:
         if old != identity:
             if not overwrite:
                 diffs = settings_differences(old, identity) if isinstance(old, dict) else []
-                what = (f"{diffs[0]}{f' and {len(diffs) - 1} more' if len(diffs) > 1 else ''}" if diffs
+                what = (differences_text(diffs) if diffs
                         else "settings differ" if isinstance(old, dict) else f"its {_RUN_FILE} is unreadable")
                 raise InputError(f"holds a different run ({what}); use --overwrite or another --out", file=out)
             for name in ("checkpoints", "metrics.json", _RUN_FILE):

@@ -39,8 +39,8 @@ import torch
 
 from .. import __version__, geometry
 from ..errors import InputError
-from ..train import (atomic_write_text, build_field, camera_rays, config_to_dict, evaluate, load_checkpoint,
-                     make_occupancy, render_views, save_checkpoint, settings_differences, train_field,
+from ..train import (atomic_write_text, build_field, camera_rays, config_to_dict, differences_text, evaluate,
+                     load_checkpoint, make_occupancy, render_views, save_checkpoint, settings_differences, train_field,
                      write_png)
 from .distill import DistillationLoss, DistillConfig, PseudoRays, prior_weights, unified_prior_weights
 from .features import FEATURE_NAMES, known_view_features, make_feature_extractor
@@ -446,9 +446,8 @@ def _check_settings(path: Path, state: dict, settings: dict) -> None:
     if "settings_json" in state:
         diffs = settings_differences(json.loads(state["settings_json"]), settings, _ADDED_SETTINGS)
         if diffs:
-            more = f" and {len(diffs) - 1} more" if len(diffs) > 1 else ""
-            raise InputError(f"output folder holds a run with different settings ({diffs[0]}{more}); {hint}",
-                             file=path)
+            raise InputError(f"output folder holds a run with different settings ({differences_text(diffs)}); "
+                             f"{hint}", file=path)
     elif state.get("fingerprint") not in _run_fingerprints(settings):
         raise InputError(f"output folder holds a run with different settings; {hint}", file=path)
 

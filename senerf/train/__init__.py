@@ -7,7 +7,8 @@ Public API (see DESIGN.md): :class:`TrainConfig`, :class:`ModelConfig`, :func:`c
 
 from .checkpoint import atomic_write_bytes, atomic_write_text, load_checkpoint, save_checkpoint
 from .config import (PRESETS, ModelConfig, TrainConfig, build_field, camera_aabb, choose_model,
-                     config_to_dict, preset_train_config, settings_differences)
+                     config_to_dict, differences_text, preset_train_config,
+                     settings_differences)
 from .evaluate import depth_to_color, evaluate, render_views, write_png
 from .loop import TrainResult, background_color, lr_factor, make_occupancy, train_field
 from .metrics import LPIPS_UNAVAILABLE, mse, psnr, ssim
@@ -15,7 +16,7 @@ from .rays import RayBatchSource, camera_rays, ray_aabb_bounds, ray_dist_to_z_de
 
 __all__ = [
     "TrainConfig", "ModelConfig", "PRESETS", "preset_train_config", "choose_model", "build_field",
-    "camera_aabb", "config_to_dict", "settings_differences",
+    "camera_aabb", "config_to_dict", "settings_differences", "differences_text",
     "RayBatchSource", "camera_rays", "ray_aabb_bounds", "ray_dist_to_z_depth",
     "train_field", "TrainResult", "lr_factor", "make_occupancy", "background_color",
     "evaluate", "render_views", "depth_to_color", "write_png",

@@ -26,6 +26,7 @@ __all__ = [
     "camera_aabb",
     "config_to_dict",
     "settings_differences",
+    "differences_text",
     "build_field",
 ]
 
@@ -237,6 +238,11 @@ def settings_differences(stored: Mapping, current: Mapping, added: Mapping[str, 
             lines.append(f"{name}: {json.dumps(old[name], default=str)} in the folder, "
                          f"{json.dumps(new[name], default=str)} now")
     return lines
+
+
+def differences_text(lines: list[str]) -> str:
+    """One line for an error message: the first of :func:`settings_differences`' lines and how many more."""
+    return lines[0] + (f" and {len(lines) - 1} more" if len(lines) > 1 else "")
 
 
 def json_ready(value):

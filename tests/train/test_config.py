@@ -98,3 +98,10 @@ def test_settings_differences_names_each_setting_by_its_dotted_path():
     # one the current run lacks is always a difference
     assert settings_differences({"t": {"j": 1, "k": "x"}}, {"t": {"j": 1}}, added={"t.k": "x"}) == [
         't.k: "x" in the folder, absent now']
+
+
+def test_differences_text_names_the_first_and_counts_the_rest():
+    from senerf.train import differences_text
+
+    assert differences_text(["a: 1 in the folder, 2 now"]) == "a: 1 in the folder, 2 now"
+    assert differences_text(["a: x", "b: y", "c: z"]) == "a: x and 2 more"
