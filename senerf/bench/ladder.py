@@ -256,16 +256,14 @@ def teacher_dependence(records: list[dict]) -> list[TeacherFit]:
     for (scene, protocol, method, rung), points in sorted(groups.items()):
         if len(points) < 2:
             continue
-        points.sort()
-        x = np.array([p[1] for p in points])
-        y = np.array([p[2] for p in points])
-        slope = intercept = r = p = None
+        seeds, teacher, gain = zip(*sorted(points))
+        x, y = np.array(teacher), np.array(gain)
+        slope = intercept = r = p_value = None
         if float(np.ptp(x)) > 0:
             fit = stats.linregress(x, y)
             slope, intercept, r = float(fit.slope), float(fit.intercept), float(fit.rvalue)
-            p = float(fit.pvalue) if len(points) >= 3 else None
-        out.append(TeacherFit(scene, protocol, method, rung, tuple(p_[0] for p_ in points), tuple(x.tolist()),
-                              tuple(y.tolist()), slope, intercept, r, p))
+            p_value = float(fit.pvalue) if len(points) >= 3 else None
+        out.append(TeacherFit(scene, protocol, method, rung, seeds, teacher, gain, slope, intercept, r, p_value))
     return out
 
 
