@@ -129,3 +129,12 @@ def test_teacher_dependence_groups_and_skips():
     rows = [r for r in teacher_dependence_markdown(list(fits.values())) if r.startswith("| lego")]
     assert len(rows) == 1 and "| fast K=1 | senerf | 3 |" in rows[0]                 # only fits of >= 3 runs
     assert teacher_dependence_markdown([balanced]) == []
+
+
+def test_docstring_examples_run():
+    import doctest
+
+    import senerf.bench.ladder as ladder
+
+    result = doctest.testmod(ladder)
+    assert result.attempted >= 2 and result.failed == 0

@@ -105,3 +105,12 @@ def test_differences_text_names_the_first_and_counts_the_rest():
 
     assert differences_text(["a: 1 in the folder, 2 now"]) == "a: 1 in the folder, 2 now"
     assert differences_text(["a: x", "b: y", "c: z"]) == "a: x and 2 more"
+
+
+def test_docstring_examples_run():
+    import doctest
+
+    import senerf.train.config as config
+
+    result = doctest.testmod(config)
+    assert result.attempted >= 2 and result.failed == 0
