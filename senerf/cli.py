@@ -165,8 +165,7 @@ def _selftrain_overrides(args) -> dict:
     out of the resume fingerprint so runs made before a flag existed still resume)."""
     pairs = (("empty_opacity", args.empty_opacity), ("pseudo_range_deg", args.pseudo_range),
              ("pseudo_range_step_deg", args.pseudo_range_step), ("n_pseudo_per_input", args.pseudo_views),
-             ("batch_empty", args.batch_empty),
-             ("student_grid", args.student_grid))
+             ("batch_empty", args.batch_empty), ("student_grid", args.student_grid))
     return {k: v for k, v in pairs if v is not None}
 
 
