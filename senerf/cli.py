@@ -55,6 +55,19 @@ def parse_views(text: str) -> list[int]:
         raise InputError(f"expected comma-separated integers like 0,1,51, got {text!r}", field="--views") from None
 
 
+def _argument_type(convert):
+    """An argparse ``type`` from a converter raising :class:`InputError`: argparse reports a ValueError as
+    "invalid <function> value", so the problem is handed over as an ``ArgumentTypeError`` (argparse then
+    writes ``argument --flag: <problem>``)."""
+    def checked(text: str):
+        try:
+            return convert(text)
+        except InputError as exc:
+            raise argparse.ArgumentTypeError(exc.problem) from None
+    checked.__name__ = getattr(convert, "__name__", "value")
+    return checked
+
+
 def _positive_int(flag: str, allow_zero: bool = False):
     def convert(text: str) -> int:
         try:
@@ -64,7 +77,7 @@ def _positive_int(flag: str, allow_zero: bool = False):
         if value < (0 if allow_zero else 1):
             raise InputError(f"must be {'>= 0' if allow_zero else '>= 1'}, got {value}", field=flag)
         return value
-    return convert
+    return _argument_type(convert)
 
 
 def _float(flag: str, minimum: float | None = None):
@@ -77,7 +90,7 @@ def _float(flag: str, minimum: float | None = None):
             raise InputError(f"expected a finite number{'' if minimum is None else f' >= {minimum:g}'}, "
                              f"got {text!r}", field=flag)
         return value
-    return convert
+    return _argument_type(convert)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -85,7 +98,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = _Parser(prog=PROG, description="Few-shot NeRF with SE-NeRF self-training (K-Planes teacher/student).")
     p.add_argument("scene", nargs="?", help="scene folder (NeRF Synthetic / instant-ngp / LLFF)")
     g = p.add_argument_group("views")
-    g.add_argument("--views", type=parse_views, help="training view indices, e.g. 0,1,51 (into the train split)")
+    g.add_argument("--views", type=_argument_type(parse_views), help="training view indices, e.g. 0,1,51 (into the train split)")
     g.add_argument("--n-views", type=_positive_int("--n-views"), help="number of views (llff, random8)")
     g.add_argument("--protocol", choices=_CLI_PROTOCOLS,
                    help="few-shot protocol (default: 'views' with --views, else extreme / llff by scene kind)")

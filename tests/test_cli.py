@@ -40,12 +40,15 @@ def test_parse_views():
 
 
 @pytest.mark.parametrize("extra, needle", [
-    (["--views", "a,b"], "--views"),
-    (["--steps", "0"], "--steps"),
+    (["--views", "a,b"], "argument --views: expected comma-separated integers like 0,1,51, got 'a,b'"),
+    (["--steps", "0"], "argument --steps: must be >= 1, got 0"),
+    (["--steps", "x"], "argument --steps: expected an integer, got 'x'"),
+    (["--pseudo-views", "0"], "argument --pseudo-views: must be >= 1, got 0"),
+    (["--empty-opacity", "nan"], "argument --empty-opacity: expected a finite number >= 0, got 'nan'"),
     (["--bogus"], "unrecognized"),
     (["--views", "0,999"], "out of range"),
     (["--views", "1,1"], "duplicate"),
-    (["--downscale", "0.5"], "--downscale"),
+    (["--downscale", "0.5"], "argument --downscale: expected a finite number >= 1, got '0.5'"),
     (["--device", "tpu"], "--device"),
     (["--protocol", "llff", "--views", "0"], "--views"),
 ])
