@@ -122,7 +122,11 @@ def main(argv: list[str] | None = None) -> int:
 
 def _cmd_run(args: argparse.Namespace, argv: list[str]) -> int:
     if args.workers < 1:
-        raise InputError(f"--workers must be >= 1, got {args.workers}", field="--workers")
+        raise InputError(f"must be >= 1, got {args.workers}", field="--workers")
+    if args.timeout is not None and not args.timeout > 0:
+        raise InputError(f"must be > 0 seconds, got {args.timeout}", field="--timeout")
+    if any(seed < 0 for seed in args.seeds):
+        raise InputError(f"must be >= 0, got {min(args.seeds)}", field="--seeds")
     for s in args.scenes:
         if not args.dry_run and not Path(s).is_dir():
             raise InputError("scene folder not found", file=s)

@@ -90,6 +90,13 @@ def test_bad_input_exits_2(tmp_path, capsys):
     assert main(["run", "--scenes", str(tmp_path), "--protocols", "nope@1"]) == 2
     assert main(["summarize", str(tmp_path / "none.jsonl")]) == 2
     assert "error" in capsys.readouterr().err
+    # run flags out of range: one line naming the flag once, before anything runs
+    for flags, message in ((["--workers", "0"], "--workers: must be >= 1, got 0"),
+                           (["--timeout", "-5"], "--timeout: must be > 0 seconds, got -5.0"),
+                           (["--seeds", "0", "-1"], "--seeds: must be >= 0, got -1")):
+        assert main(["run", "--scenes", str(tmp_path), "--out", str(tmp_path / "o"), *flags]) == 2
+        assert capsys.readouterr().err.strip() == f"senerf-bench: error: {message}"
+        assert not (tmp_path / "o").exists()
 
 
 def test_report_paper_rows_per_protocol():
