@@ -80,15 +80,17 @@ def _positive_int(flag: str, allow_zero: bool = False):
     return _argument_type(convert)
 
 
-def _float(flag: str, minimum: float | None = None):
+def _float(flag: str, minimum: float | None = None, positive: bool = False):
+    """A finite float, at least ``minimum`` when given, above 0 when ``positive``."""
     def convert(text: str) -> float:
         try:
             value = float(text)
         except ValueError:
             raise InputError(f"expected a number, got {text!r}", field=flag) from None
-        if value != value or value in (float("inf"), float("-inf")) or (minimum is not None and value < minimum):
-            raise InputError(f"expected a finite number{'' if minimum is None else f' >= {minimum:g}'}, "
-                             f"got {text!r}", field=flag)
+        if (value != value or value in (float("inf"), float("-inf")) or (minimum is not None and value < minimum)
+                or (positive and value <= 0)):
+            bound = " > 0" if positive else "" if minimum is None else f" >= {minimum:g}"
+            raise InputError(f"expected a finite number{bound}, got {text!r}", field=flag)
         return value
     return _argument_type(convert)
 
@@ -118,7 +120,7 @@ def build_parser() -> argparse.ArgumentParser:
     m.add_argument("--resolution", type=_positive_int("--resolution"), help="base plane resolution")
     m.add_argument("--samples", type=_positive_int("--samples"), help="samples per ray")
     m.add_argument("--hidden", type=_positive_int("--hidden"), help="width of the K-Planes MLPs (default 32)")
-    m.add_argument("--aabb", type=_float("--aabb", 0.0), help="half size of a cube AABB around the origin")
+    m.add_argument("--aabb", type=_float("--aabb", positive=True), help="half size of a cube AABB around the origin")
     m.add_argument("--background", choices=("random", "white", "black"), help="training background")
     m.add_argument("--no-view-dependence", action="store_true", help="colour ignores the view direction")
     m.add_argument("--no-occupancy", action="store_true", help="no occupancy grid")
@@ -219,6 +221,8 @@ def _prepare_out(out: Path, identity: dict, overwrite: bool) -> None:
     """Refuse a folder holding another run (unless ``overwrite``); record this run's identity."""
     from senerf.train import atomic_write_text, differences_text, settings_differences
 
+    if out.exists() and not out.is_dir():
+        raise InputError("exists and is not a folder; choose another --out", file=out)
     run_file = out / _RUN_FILE
     if run_file.exists():
         try:

@@ -49,6 +49,7 @@ def test_parse_views():
     (["--views", "0,999"], "out of range"),
     (["--views", "1,1"], "duplicate"),
     (["--downscale", "0.5"], "argument --downscale: expected a finite number >= 1, got '0.5'"),
+    (["--aabb", "0"], "argument --aabb: expected a finite number > 0, got '0'"),
     (["--device", "tpu"], "--device"),
     (["--protocol", "llff", "--views", "0"], "--views"),
 ])

@@ -7,8 +7,8 @@ line naming the file and the field (no traceback), and every file of the existin
 bytes and mtime.  Three of the cases are repeated through a subprocess (a fresh interpreter) to show that
 nothing on stderr but that one line appears.
 
-Cases tried: 60.  Refused (exit 2): the 50 input cases of ``BAD_CASES`` (3 of them also by subprocess)
-and 2 output folders (one holding a different run, one not a senerf-fit folder at all).  Accepted and
+Cases tried: 61.  Refused (exit 2): the 50 input cases of ``BAD_CASES`` (3 of them also by subprocess)
+and 3 output folders (one holding a different run, one not a senerf-fit folder at all, one a file).  Accepted and
 fitted: grayscale PNG, 16-bit PNG (colour and grey), an RGB frame in an RGBA scene, an RGBA frame in an RGB
 scene, an all-RGB scene, an instant-ngp scene with one missing image (skipped with a warning), the same
 command resuming its own run, and ``--overwrite`` replacing a different run: 8.
@@ -295,6 +295,12 @@ def test_different_run_is_refused_without_overwrite_and_replaced_with_it(scene24
     assert main([str(scene24), "--views", "0,1,2", "--out", str(stranger), *TINY_FIT]) == 2
     _check_one_line(capsys.readouterr().err, [str(stranger), "not a senerf-fit output folder"])
     assert (stranger / "notes.txt").read_text() == "mine"
+    # a file where the output folder should be
+    a_file = tmp_path / "a_file"
+    a_file.write_text("mine")
+    assert main([str(scene24), "--views", "0,1,2", "--out", str(a_file), *TINY_FIT]) == 2
+    _check_one_line(capsys.readouterr().err, [str(a_file), "not a folder", "--out"])
+    assert a_file.read_text() == "mine"
     # --overwrite replaces the other run: metrics now record seed 3
     assert main([*other, "--overwrite"]) == 0
     metrics = json.loads((out / "metrics.json").read_text())
@@ -409,4 +415,4 @@ def test_ngp_frame_without_image_is_skipped_with_a_warning(scene_copy, tmp_path,
 
 def test_docstring_counts_match_the_table():
     assert f"the {len(BAD_CASES)} input cases" in __doc__
-    assert f"Cases tried: {len(BAD_CASES) + 2 + 8}." in __doc__
+    assert f"Cases tried: {len(BAD_CASES) + 3 + 8}." in __doc__
