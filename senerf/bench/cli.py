@@ -120,6 +120,14 @@ def main(argv: list[str] | None = None) -> int:
         return 2
 
 
+def _folder(path: str, flag: str) -> Path:
+    """``path`` as an output folder: refused in one line when something other than a folder is there."""
+    out = Path(path)
+    if out.exists() and not out.is_dir():
+        raise InputError(f"exists and is not a folder; choose another {flag}", file=out)
+    return out
+
+
 def _cmd_run(args: argparse.Namespace, argv: list[str]) -> int:
     if args.workers < 1:
         raise InputError(f"must be >= 1, got {args.workers}", field="--workers")
@@ -127,6 +135,7 @@ def _cmd_run(args: argparse.Namespace, argv: list[str]) -> int:
         raise InputError(f"must be > 0 seconds, got {args.timeout}", field="--timeout")
     if any(seed < 0 for seed in args.seeds):
         raise InputError(f"must be >= 0, got {min(args.seeds)}", field="--seeds")
+    out = _folder(args.out, "--out")
     for s in args.scenes:
         if not args.dry_run and not Path(s).is_dir():
             raise InputError("scene folder not found", file=s)
@@ -134,7 +143,6 @@ def _cmd_run(args: argparse.Namespace, argv: list[str]) -> int:
     specs = expand_specs([str(Path(s).resolve()) if Path(s).is_dir() else s for s in args.scenes],
                          args.protocols, args.methods, args.presets, args.seeds, args.iterations, args.device,
                          args.steps, check_scenes=check)
-    out = Path(args.out)
     results = Path(args.results) if args.results else out / "results.jsonl"
     fit_command = tuple(shlex.split(args.fit_command)) if args.fit_command else None
     threads = args.threads
@@ -231,7 +239,7 @@ def _cmd_plot(args: argparse.Namespace) -> int:
     aggs = aggregate(records)
     if not aggs:
         raise InputError("no finished runs to plot", file=args.results)
-    out = Path(args.out_dir)
+    out = _folder(args.out_dir, "--out-dir")
     for scene, protocol in sorted({(a.scene, a.protocol) for a in aggs}):
         group = [a for a in aggs if a.scene == scene and a.protocol == protocol]
         stem = f"{scene}_{protocol.replace('@', '_at_')}"

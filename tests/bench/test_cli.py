@@ -97,6 +97,21 @@ def test_bad_input_exits_2(tmp_path, capsys):
         assert main(["run", "--scenes", str(tmp_path), "--out", str(tmp_path / "o"), *flags]) == 2
         assert capsys.readouterr().err.strip() == f"senerf-bench: error: {message}"
         assert not (tmp_path / "o").exists()
+    # a file where an output folder should be
+    a_file = tmp_path / "a_file"
+    a_file.write_text("mine")
+    assert main(["run", "--scenes", str(tmp_path), "--out", str(a_file)]) == 2
+    assert capsys.readouterr().err.strip() == (f"senerf-bench: error: {a_file}: exists and is not a folder; "
+                                               "choose another --out")
+    results = tmp_path / "results.jsonl"
+    results.write_text(json.dumps({"run_key": "k", "status": "ok", "attempt": "a", "scene": "s", "protocol": "p",
+                                   "method": "baseline", "preset": "fast", "seed": 0, "iterations": 0,
+                                   "iteration": 0, "psnr": 20.0, "ssim": 0.5, "lpips": "unavailable",
+                                   "avg": "unavailable", "seconds": 1.0, "seconds_cumulative": 1.0,
+                                   "peak_memory_mib": 100.0}) + "\n")
+    assert main(["plot", str(results), "--out-dir", str(a_file)]) == 2
+    assert "exists and is not a folder; choose another --out-dir" in capsys.readouterr().err
+    assert a_file.read_text() == "mine"
 
 
 def test_report_paper_rows_per_protocol():
