@@ -128,6 +128,14 @@ def _folder(path: str, flag: str) -> Path:
     return out
 
 
+def _file(path: str, flag: str) -> Path:
+    """``path`` as an output file: refused in one line when a folder is there."""
+    out = Path(path)
+    if out.is_dir():
+        raise InputError(f"is a folder; {flag} takes a file name", file=out)
+    return out
+
+
 def _cmd_run(args: argparse.Namespace, argv: list[str]) -> int:
     if args.workers < 1:
         raise InputError(f"must be >= 1, got {args.workers}", field="--workers")
@@ -188,6 +196,7 @@ def _cmd_summarize(args: argparse.Namespace) -> int:
 
 
 def _cmd_report(args: argparse.Namespace, argv: list[str]) -> int:
+    out = _file(args.out, "--out") if args.out else None
     text = make_report(_load(args.results), ["senerf-bench", *argv], title=args.title)
     for name in args.masks:
         try:
@@ -203,10 +212,10 @@ def _cmd_report(args: argparse.Namespace, argv: list[str]) -> int:
         path = Path(args.into)
         atomic_write_text(path, splice_report(_read_text(path), text, path))
         print(f"updated the generated section of {path}")
-    if args.out:
-        Path(args.out).parent.mkdir(parents=True, exist_ok=True)
-        Path(args.out).write_text(text + "\n")
-        print(f"wrote {args.out}")
+    if out is not None:
+        out.parent.mkdir(parents=True, exist_ok=True)
+        atomic_write_text(out, text + "\n")
+        print(f"wrote {out}")
     else:
         print(text)
     return 0
@@ -257,6 +266,7 @@ def _cmd_plot(args: argparse.Namespace) -> int:
 def _cmd_angles(args: argparse.Namespace) -> int:
     from senerf.data import load_scene   # numpy + imageio only; imported here to keep start-up light
 
+    _file(args.out, "--out")
     proto = parse_protocol(args.protocol)
     scene = load_scene(args.scene, downscale=proto.downscale)
     name = Path(args.scene).name

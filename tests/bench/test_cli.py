@@ -112,6 +112,18 @@ def test_bad_input_exits_2(tmp_path, capsys):
     assert main(["plot", str(results), "--out-dir", str(a_file)]) == 2
     assert "exists and is not a folder; choose another --out-dir" in capsys.readouterr().err
     assert a_file.read_text() == "mine"
+    # a folder where an output file should be; nothing else written first
+    doc = tmp_path / "doc.md"
+    doc.write_text("x\n<!-- senerf-bench report: BEGIN (generated, do not edit by hand) -->\n"
+                   "<!-- senerf-bench report: END -->\n")
+    before = doc.read_text()
+    assert main(["report", str(results), "--into", str(doc), "--out", str(tmp_path)]) == 2
+    assert capsys.readouterr().err.strip() == (f"senerf-bench: error: {tmp_path}: is a folder; --out takes a "
+                                               "file name")
+    assert doc.read_text() == before
+    assert main(["angles", str(results), "--scene", str(tmp_path), "--protocol", "llff3", "--out",
+                 str(tmp_path)]) == 2
+    assert "is a folder; --out takes a file name" in capsys.readouterr().err
 
 
 def test_report_paper_rows_per_protocol():

@@ -44,6 +44,10 @@ def test_analysis_plots_write_pngs(tmp_path):
         assert iio.imread(p).shape[-1] in (3, 4)
     with pytest.raises(ValueError):
         plot_psnr_vs_angle({"x": a}, {"x": a[:3]}, tmp_path / "bad.png")
+    # a PNG at the path as given, even without the suffix (matplotlib would otherwise add one)
+    bare = plot_psnr_vs_angle({"senerf": a}, {"senerf": 25 - 0.1 * a}, tmp_path / "no_suffix")
+    assert bare == tmp_path / "no_suffix" and bare.is_file() and not (tmp_path / "no_suffix.png").exists()
+    assert iio.imread(bare, extension=".png").shape[-1] in (3, 4)
 
 
 @pytest.mark.parametrize("n", [1, 10, 11, 20, 21, 40])
