@@ -17,6 +17,8 @@ import sys
 import tempfile
 from pathlib import Path
 
+from senerf.errors import InputError
+
 __all__ = ["DEMO_PRESET", "demo_iterations", "ensure_demo_scene", "run_demo"]
 
 DEMO_PRESET = "fast"
@@ -61,6 +63,8 @@ def run_demo(args) -> int:
     from senerf.procedural import DEMO_FEWSHOT_VIEWS
 
     out = Path(args.out) if args.out is not None else Path("runs") / "demo"
+    if out.exists() and not out.is_dir():
+        raise InputError("exists and is not a folder; choose another --out", file=out)
     scene_dir = ensure_demo_scene(out / "demo_scene", seed=args.seed)
     fit_out = out / "fit"
     argv = [str(scene_dir), "--views", ",".join(map(str, DEMO_FEWSHOT_VIEWS)), "--preset", DEMO_PRESET,

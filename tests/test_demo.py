@@ -33,3 +33,14 @@ def test_demo_runs_baseline_and_senerf_and_prints_both(tmp_path, capsys):
     assert main(argv) == 0
     assert (out / "demo_scene" / "transforms_train.json").stat().st_mtime_ns == scene_mtime
     assert json.loads((out / "fit" / "metrics.json").read_text())["iterations"] == metrics["iterations"]
+
+
+def test_demo_refuses_a_file_as_out(tmp_path, capsys):
+    from senerf.cli import main
+
+    a_file = tmp_path / "a_file"
+    a_file.write_text("mine")
+    assert main(["--demo", "--out", str(a_file), "--quiet"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == [f"senerf-fit: error: {a_file}: exists and is not a folder; choose another --out"]
+    assert a_file.read_text() == "mine"
