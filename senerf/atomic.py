@@ -1,6 +1,7 @@
 """Atomic file writes (no torch): a temporary file in the same folder, flushed and fsynced, then renamed
 over the target, so a crash leaves the old file or the new one, never half of one.  Used by checkpoints,
-metrics, renders and the benchmark report."""
+metrics, renders and the benchmark report.  Also the checks the command lines make of an output path
+before writing anything there (:func:`output_folder`, :func:`output_file`)."""
 
 from __future__ import annotations
 
@@ -8,7 +9,26 @@ import os
 import tempfile
 from pathlib import Path
 
-__all__ = ["atomic_write", "atomic_write_bytes", "atomic_write_text"]
+from senerf.errors import InputError
+
+__all__ = ["atomic_write", "atomic_write_bytes", "atomic_write_text", "output_folder", "output_file"]
+
+
+def output_folder(path, flag: str) -> Path:
+    """``path`` as an output folder; :class:`InputError` naming it when something other than a folder is
+    there (``flag``: the option that gave it, for the message)."""
+    path = Path(path)
+    if path.exists() and not path.is_dir():
+        raise InputError(f"exists and is not a folder; choose another {flag}", file=path)
+    return path
+
+
+def output_file(path, flag: str) -> Path:
+    """``path`` as an output file; :class:`InputError` naming it when a folder is there."""
+    path = Path(path)
+    if path.is_dir():
+        raise InputError(f"is a folder; {flag} takes a file name", file=path)
+    return path
 
 
 def _fsync_dir(folder: Path) -> None:

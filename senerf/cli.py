@@ -64,7 +64,6 @@ def _argument_type(convert):
             return convert(text)
         except InputError as exc:
             raise argparse.ArgumentTypeError(exc.problem) from None
-    checked.__name__ = getattr(convert, "__name__", "value")
     return checked
 
 
@@ -100,7 +99,8 @@ def build_parser() -> argparse.ArgumentParser:
     p = _Parser(prog=PROG, description="Few-shot NeRF with SE-NeRF self-training (K-Planes teacher/student).")
     p.add_argument("scene", nargs="?", help="scene folder (NeRF Synthetic / instant-ngp / LLFF)")
     g = p.add_argument_group("views")
-    g.add_argument("--views", type=_argument_type(parse_views), help="training view indices, e.g. 0,1,51 (into the train split)")
+    g.add_argument("--views", type=_argument_type(parse_views),
+                   help="training view indices, e.g. 0,1,51 (into the train split)")
     g.add_argument("--n-views", type=_positive_int("--n-views"), help="number of views (llff, random8)")
     g.add_argument("--protocol", choices=_CLI_PROTOCOLS,
                    help="few-shot protocol (default: 'views' with --views, else extreme / llff by scene kind)")
@@ -177,7 +177,7 @@ def _selftrain_flags(args) -> dict:
 
 def _selftrain_overrides(args) -> dict:
     """SelfTrainConfig fields given on the command line (absent ones keep the config's defaults, and stay
-    out of the resume fingerprint so runs made before a flag existed still resume)."""
+    out of run.json's identity so runs made before a flag existed still resume)."""
     pairs = (("empty_opacity", args.empty_opacity), ("pseudo_range_deg", args.pseudo_range),
              ("pseudo_range_step_deg", args.pseudo_range_step), ("n_pseudo_per_input", args.pseudo_views),
              ("batch_empty", args.batch_empty), ("student_grid", args.student_grid))
@@ -219,10 +219,10 @@ def _check_device(device: str) -> str:
 
 def _prepare_out(out: Path, identity: dict, overwrite: bool) -> None:
     """Refuse a folder holding another run (unless ``overwrite``); record this run's identity."""
+    from senerf.atomic import output_folder
     from senerf.train import atomic_write_text, differences_text, settings_differences
 
-    if out.exists() and not out.is_dir():
-        raise InputError("exists and is not a folder; choose another --out", file=out)
+    output_folder(out, "--out")
     run_file = out / _RUN_FILE
     if run_file.exists():
         try:

@@ -17,7 +17,7 @@ import sys
 import tempfile
 from pathlib import Path
 
-from senerf.errors import InputError
+from senerf.atomic import output_folder
 
 __all__ = ["DEMO_PRESET", "demo_iterations", "ensure_demo_scene", "run_demo"]
 
@@ -62,9 +62,7 @@ def run_demo(args) -> int:
     from senerf.cli import main
     from senerf.procedural import DEMO_FEWSHOT_VIEWS
 
-    out = Path(args.out) if args.out is not None else Path("runs") / "demo"
-    if out.exists() and not out.is_dir():
-        raise InputError("exists and is not a folder; choose another --out", file=out)
+    out = output_folder(args.out if args.out is not None else Path("runs") / "demo", "--out")
     scene_dir = ensure_demo_scene(out / "demo_scene", seed=args.seed)
     fit_out = out / "fit"
     argv = [str(scene_dir), "--views", ",".join(map(str, DEMO_FEWSHOT_VIEWS)), "--preset", DEMO_PRESET,

@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from senerf.atomic import atomic_write_text
+from senerf.atomic import atomic_write_text, output_file, output_folder
 from senerf.errors import InputError
 
 from .execute import RunnerConfig
@@ -120,22 +120,6 @@ def main(argv: list[str] | None = None) -> int:
         return 2
 
 
-def _folder(path: str, flag: str) -> Path:
-    """``path`` as an output folder: refused in one line when something other than a folder is there."""
-    out = Path(path)
-    if out.exists() and not out.is_dir():
-        raise InputError(f"exists and is not a folder; choose another {flag}", file=out)
-    return out
-
-
-def _file(path: str, flag: str) -> Path:
-    """``path`` as an output file: refused in one line when a folder is there."""
-    out = Path(path)
-    if out.is_dir():
-        raise InputError(f"is a folder; {flag} takes a file name", file=out)
-    return out
-
-
 def _cmd_run(args: argparse.Namespace, argv: list[str]) -> int:
     if args.workers < 1:
         raise InputError(f"must be >= 1, got {args.workers}", field="--workers")
@@ -143,7 +127,7 @@ def _cmd_run(args: argparse.Namespace, argv: list[str]) -> int:
         raise InputError(f"must be > 0 seconds, got {args.timeout}", field="--timeout")
     if any(seed < 0 for seed in args.seeds):
         raise InputError(f"must be >= 0, got {min(args.seeds)}", field="--seeds")
-    out = _folder(args.out, "--out")
+    out = output_folder(args.out, "--out")
     for s in args.scenes:
         if not args.dry_run and not Path(s).is_dir():
             raise InputError("scene folder not found", file=s)
@@ -196,7 +180,7 @@ def _cmd_summarize(args: argparse.Namespace) -> int:
 
 
 def _cmd_report(args: argparse.Namespace, argv: list[str]) -> int:
-    out = _file(args.out, "--out") if args.out else None
+    out = output_file(args.out, "--out") if args.out else None
     text = make_report(_load(args.results), ["senerf-bench", *argv], title=args.title)
     for name in args.masks:
         try:
@@ -248,16 +232,17 @@ def _cmd_plot(args: argparse.Namespace) -> int:
     aggs = aggregate(records)
     if not aggs:
         raise InputError("no finished runs to plot", file=args.results)
-    out = _folder(args.out_dir, "--out-dir")
+    out = output_folder(args.out_dir, "--out-dir")
+    fits = [f for f in teacher_dependence(records) if f.method == "senerf"]
     for scene, protocol in sorted({(a.scene, a.protocol) for a in aggs}):
         group = [a for a in aggs if a.scene == scene and a.protocol == protocol]
         stem = f"{scene}_{protocol.replace('@', '_at_')}"
         for path in (plot_frontier(group, out / f"frontier_{stem}.png", f"{scene} {protocol}: PSNR vs cost"),
                      plot_iterations(group, out / f"iterations_{stem}.png", f"{scene} {protocol}")):
             print(f"wrote {path}")
-        fits = [f for f in teacher_dependence(records) if (f.scene, f.protocol, f.method) == (scene, protocol, "senerf")]
-        if fits:
-            path = plot_gain_vs_teacher(fits, out / f"gain_vs_teacher_{stem}.png",
+        mine = [f for f in fits if (f.scene, f.protocol) == (scene, protocol)]
+        if mine:
+            path = plot_gain_vs_teacher(mine, out / f"gain_vs_teacher_{stem}.png",
                                         f"{scene} {protocol}: SE-NeRF's gain over its teacher, per run")
             print(f"wrote {path}")
     return 0
@@ -266,7 +251,7 @@ def _cmd_plot(args: argparse.Namespace) -> int:
 def _cmd_angles(args: argparse.Namespace) -> int:
     from senerf.data import load_scene   # numpy + imageio only; imported here to keep start-up light
 
-    _file(args.out, "--out")
+    output_file(args.out, "--out")
     proto = parse_protocol(args.protocol)
     scene = load_scene(args.scene, downscale=proto.downscale)
     name = Path(args.scene).name

@@ -17,10 +17,11 @@ Every extractor maps images ``(n, H, W, 3)`` float32 in ``[0, 1]`` (straight RGB
 * :class:`DaisyFeatures` (``'daisy'``): OpenCV-contrib dense DAISY descriptors computed at every pixel
   centre of the grey image (200 floats per pixel with the default parameters); no learned weights.
 
-``extractor.lazy(images)`` gives the same features as ``extractor(images)`` for views that are read one at a
-time (the known views of a fit): VGG-19 keeps the raw maps at their own resolutions (1/8 of the full-size
-features' floats) and upsamples one view on access, with the very operations ``__call__`` uses, so the values
-are identical; on fern with 3 views at 504x378 the full-size known-view features are 2.2 GB.
+``extractor.lazy(images, keep=k)`` gives the same features as ``extractor(images)`` for views that are read
+one at a time (the known views of a fit): VGG-19 keeps the raw maps at their own resolutions (1/8 of the
+full-size features' floats) and upsamples a view on access, with the very operations ``__call__`` uses, so
+the values are identical; the first ``k`` views are kept once built.  :func:`known_view_features` picks
+``k`` from the machine's memory (on fern with 3 views at 504x378 the full-size features are 2.2 GB).
 """
 
 from __future__ import annotations
