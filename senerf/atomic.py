@@ -6,7 +6,7 @@ before writing anything there (:func:`output_folder`, :func:`output_file`)."""
 from __future__ import annotations
 
 import os
-import tempfile
+import secrets
 from pathlib import Path
 
 from senerf.errors import InputError
@@ -44,11 +44,25 @@ def _fsync_dir(folder: Path) -> None:
         os.close(fd)
 
 
+def _create_temp(path: Path) -> tuple[int, str]:
+    """A new, exclusively created temporary file beside ``path``: (fd, its path).  Created with mode 0o666
+    less the umask, as ``open`` would make ``path`` itself (``tempfile.mkstemp`` makes 0o600, and the
+    rename would leave every output readable by its owner only)."""
+    for _ in range(100):
+        tmp = str(path.parent / f".{path.name}.{secrets.token_hex(6)}.tmp")
+        try:
+            return os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_BINARY", 0), 0o666), tmp
+        except FileExistsError:  # pragma: no cover - 48 random bits collided
+            continue
+    raise FileExistsError(f"no free temporary name beside {path}")  # pragma: no cover
+
+
 def atomic_write(path: Path, write) -> None:
-    """Call ``write(binary file)`` on a temporary file beside ``path``, fsync it, rename it over ``path``."""
+    """Call ``write(binary file)`` on a temporary file beside ``path``, fsync it, rename it over ``path``.
+    The file gets the permissions ``open`` would give a new file (0o666 less the umask)."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    fd, tmp = _create_temp(path)
     try:
         with os.fdopen(fd, "wb") as fh:
             write(fh)

@@ -79,16 +79,18 @@ def _positive_int(flag: str, allow_zero: bool = False):
     return _argument_type(convert)
 
 
-def _float(flag: str, minimum: float | None = None, positive: bool = False):
-    """A finite float, at least ``minimum`` when given, above 0 when ``positive``."""
+def _float(flag: str, minimum: float | None = None, positive: bool = False, maximum: float | None = None):
+    """A finite float, at least ``minimum`` / at most ``maximum`` when given, above 0 when ``positive``."""
     def convert(text: str) -> float:
         try:
             value = float(text)
         except ValueError:
             raise InputError(f"expected a number, got {text!r}", field=flag) from None
         if (value != value or value in (float("inf"), float("-inf")) or (minimum is not None and value < minimum)
-                or (positive and value <= 0)):
+                or (positive and value <= 0) or (maximum is not None and value > maximum)):
             bound = " > 0" if positive else "" if minimum is None else f" >= {minimum:g}"
+            if maximum is not None:
+                bound += (" and" if bound else "") + f" <= {maximum:g}"
             raise InputError(f"expected a finite number{bound}, got {text!r}", field=flag)
         return value
     return _argument_type(convert)
@@ -129,9 +131,11 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--threshold", choices=("adaptive", "fixed", "unified"), default="adaptive")
     s.add_argument("--no-density-distill", action="store_true")
     s.add_argument("--no-prior", action="store_true")
-    s.add_argument("--empty-opacity", type=_float("--empty-opacity", 0.0), default=None,
+    s.add_argument("--empty-opacity", type=_float("--empty-opacity", 0.0, maximum=OPACITY_THRESHOLD_DEFAULT),
+                   default=None,
                    help="pseudo pixels the teacher renders with opacity below this are distilled as empty "
-                        f"space (0: off, the paper's letter; default {EMPTY_OPACITY_DEFAULT:g})")
+                        f"space (0: off, the paper's letter; default {EMPTY_OPACITY_DEFAULT:g}; at most the "
+                        f"foreground threshold {OPACITY_THRESHOLD_DEFAULT:g})")
     s.add_argument("--pseudo-range", type=_float("--pseudo-range", 0.0), default=None, metavar="DEG",
                    help="azimuth/elevation range of the first iteration's pseudo views around each input "
                         f"(default {PSEUDO_RANGE_DEFAULT:g}, the paper's)")
@@ -160,6 +164,8 @@ def build_parser() -> argparse.ArgumentParser:
 #: SelfTrainConfig.empty_opacity's default, repeated here so that --help needs no torch import (a test
 #: checks the two agree)
 EMPTY_OPACITY_DEFAULT = 0.2
+#: SelfTrainConfig.opacity_threshold's default (foreground pixels), likewise repeated and tested
+OPACITY_THRESHOLD_DEFAULT = 0.5
 #: SelfTrainConfig.pseudo_range_deg / pseudo_range_step_deg defaults, likewise repeated and tested
 PSEUDO_RANGE_DEFAULT = 10.0
 PSEUDO_RANGE_STEP_DEFAULT = 5.0

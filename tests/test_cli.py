@@ -44,7 +44,8 @@ def test_parse_views():
     (["--steps", "0"], "argument --steps: must be >= 1, got 0"),
     (["--steps", "x"], "argument --steps: expected an integer, got 'x'"),
     (["--pseudo-views", "0"], "argument --pseudo-views: must be >= 1, got 0"),
-    (["--empty-opacity", "nan"], "argument --empty-opacity: expected a finite number >= 0, got 'nan'"),
+    (["--empty-opacity", "nan"], "argument --empty-opacity: expected a finite number >= 0 and <= 0.5, got 'nan'"),
+    (["--empty-opacity", "0.7"], "argument --empty-opacity: expected a finite number >= 0 and <= 0.5, got '0.7'"),
     (["--bogus"], "unrecognized"),
     (["--views", "0,999"], "out of range"),
     (["--views", "1,1"], "duplicate"),
@@ -111,12 +112,14 @@ def test_tiny_end_to_end_fit_resume_and_overwrite(tiny_scene, tmp_path, capsys):
 
 
 def test_help_states_the_selftraining_defaults():
-    from senerf.cli import (BATCH_EMPTY_DEFAULT, EMPTY_OPACITY_DEFAULT, PSEUDO_RANGE_DEFAULT,
-                            PSEUDO_RANGE_STEP_DEFAULT, PSEUDO_VIEWS_DEFAULT, STUDENT_GRID_DEFAULT)
+    from senerf.cli import (BATCH_EMPTY_DEFAULT, EMPTY_OPACITY_DEFAULT, OPACITY_THRESHOLD_DEFAULT,
+                            PSEUDO_RANGE_DEFAULT, PSEUDO_RANGE_STEP_DEFAULT, PSEUDO_VIEWS_DEFAULT,
+                            STUDENT_GRID_DEFAULT)
     from senerf.selftrain import SelfTrainConfig
 
     assert SelfTrainConfig().n_pseudo_per_input == PSEUDO_VIEWS_DEFAULT
     assert SelfTrainConfig().empty_opacity == EMPTY_OPACITY_DEFAULT
+    assert SelfTrainConfig().opacity_threshold == OPACITY_THRESHOLD_DEFAULT
     assert SelfTrainConfig().pseudo_range_deg == PSEUDO_RANGE_DEFAULT
     assert SelfTrainConfig().pseudo_range_step_deg == PSEUDO_RANGE_STEP_DEFAULT
     assert SelfTrainConfig().batch_empty == BATCH_EMPTY_DEFAULT

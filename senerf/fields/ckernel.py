@@ -168,10 +168,11 @@ def fused_plane_features(table: torch.Tensor, u: torch.Tensor, resolutions: tupl
         table: ``(rows, F)`` contiguous CPU float32/float64 (layout of :mod:`senerf.fields.interp`).
         u: ``(N, 3)`` coordinates clamped to ``[-1, 1]`` (no gradient flows to ``u``).
     Returns:
-        ``(N, S * F)`` (differentiable in ``table``) or ``None`` (CUDA, other dtype, ``u`` needs a gradient,
-        F > MAX_FEATURES, or no compiler).
+        ``(N, S * F)`` (differentiable in ``table``) or ``None`` (``table`` or ``u`` not on the CPU, other
+        dtype, ``u`` needs a gradient, F > MAX_FEATURES, or no compiler).  The C code reads raw pointers, so
+        points on another device must never reach it (they would be read as host memory).
     """
-    if (table.device.type != "cpu" or u.requires_grad or table.shape[1] > MAX_FEATURES
+    if (table.device.type != "cpu" or u.device.type != "cpu" or u.requires_grad or table.shape[1] > MAX_FEATURES
             or not table.is_contiguous() or len(resolutions) > MAX_SCALES):
         return None
     lib = load_kernel(table.dtype, table.shape[1])

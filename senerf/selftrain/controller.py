@@ -87,8 +87,11 @@ class SelfTrainConfig(DistillConfig):
         empty_opacity: pseudo pixels the teacher renders with opacity below this are reliable *empty* rays
             (colour = background, density distilled to the teacher's near-zero weights); 0 switches it off.
             The paper's reliability is defined for surface pixels only and says nothing of background
-            pixels; this is our addition (ablation ``senerf-no-empty``).  Empty rays also count as reliable
-            neighbours of the prior, so unreliable pixels at a silhouette get a partly empty prior target.
+            pixels; this is our addition (ablation ``senerf-no-empty``).  With the adaptive and fixed
+            thresholds empty rays also count as reliable neighbours of the prior, so unreliable pixels at a
+            silhouette get a partly empty prior target; the unified weighting's neighbour weights come from
+            the foreground similarities alone (the paper's equation), so there they do not.  At most
+            ``opacity_threshold`` (a foreground pixel is never labelled empty).
             Measured on lego Extreme at 100x100, fast preset, one iteration, student seed 0 (teacher
             16.59 dB): off 16.78, 0.05 17.31, 0.2 17.44, 0.5 17.10 dB (student seed 1: off 16.73, 0.2
             17.08; the student's seed alone moves the result by ~0.4 dB).  Hence 0.2.
@@ -135,6 +138,10 @@ class SelfTrainConfig(DistillConfig):
             raise InputError("pseudo ranges must be >= 0 degrees", field="pseudo_range_deg")
         if not 0 < self.opacity_threshold <= 1:
             raise InputError(f"must be in (0, 1], got {self.opacity_threshold!r}", field="opacity_threshold")
+        if self.empty_opacity > self.opacity_threshold:
+            raise InputError(f"must be <= opacity_threshold ({self.opacity_threshold!r}), got "
+                             f"{self.empty_opacity!r}: foreground pixels would be labelled empty space",
+                             field="empty_opacity")
         if self.batch_empty > 0 and self.empty_opacity <= 0:
             raise InputError("batch_empty > 0 draws empty-space rays apart, which needs empty_opacity > 0",
                              field="batch_empty")
@@ -201,7 +208,7 @@ def known_images(scene, idx, model) -> np.ndarray:
     if scene.alpha is None:
         return np.asarray(scene.rgb[idx], dtype=np.float32)
     bg = (1.0, 1.0, 1.0) if model.eval_background == "white" else (0.0, 0.0, 0.0)
-    return np.asarray(scene.composite(bg)[idx], dtype=np.float32)
+    return np.asarray(scene.composite(bg, idx), dtype=np.float32)  # only these views, not the scene's
 
 
 def estimate_reliability(teacher, occupancy, model, scene, train_idx, pseudo_c2w: np.ndarray, extractor,

@@ -94,7 +94,9 @@ class ModelConfig:
     Attributes:
         field: ``"kplanes"`` or ``"nerf"``.
         aabb: ``((xmin, ymin, zmin), (xmax, ymax, zmax))`` of the field, in world units, or in NDC when
-            ``ndc`` is true.
+            ``ndc`` is true.  The fields, the occupancy grid and the rays work in the *model frame*, the
+            world shifted by :attr:`frame_origin` (see there), so float32 keeps its precision in scenes
+            far from the world origin.
         ndc: forward-facing scene rendered in normalised device coordinates (LLFF convention).
         ndc_near: world-space near plane of the NDC warp (``ndc`` only).
         near, far: constant ray bounds, or ``None`` to intersect every ray with ``aabb`` (ignored in NDC,
@@ -165,6 +167,35 @@ class ModelConfig:
             raise InputError(f"must be one of {', '.join(_BACKGROUNDS)}", field="train_background")
         if self.eval_background not in ("white", "black"):
             raise InputError("must be 'white' or 'black'", field="eval_background")
+
+    @property
+    def frame_origin(self) -> tuple[float, float, float]:
+        """The world point the model frame starts at: per axis, the box centre truncated to a whole number
+        of box extents along that axis.  So ``(0, 0, 0)`` for every box that contains the world origin
+        (the model frame is then the world frame, bit for bit), and within one extent of the box centre
+        for a scene far from the origin, where float32 world points would be coarse (0.06 units apart at
+        1e6).  ``(0, 0, 0)`` in NDC.  World points become model points by subtracting it, in float64,
+        before any cast to float32.
+
+        Example:
+            >>> ModelConfig(aabb=((-1, -1, -1), (1, 1, 3))).frame_origin
+            (0.0, 0.0, 0.0)
+            >>> ModelConfig(aabb=((1e6 - 1, -1, 9.5), (1e6 + 1, 1, 11.5))).frame_origin
+            (1000000.0, 0.0, 10.0)
+        """
+        if self.ndc:
+            return (0.0, 0.0, 0.0)
+        box = np.asarray(self.aabb, dtype=np.float64)
+        extent = box[1] - box[0]
+        origin = extent * np.trunc(box.mean(axis=0) / extent) + 0.0  # + 0.0: no -0.0
+        return tuple(float(v) for v in origin)
+
+    @property
+    def field_aabb(self) -> tuple[tuple[float, float, float], tuple[float, float, float]]:
+        """``aabb`` in the model frame (``aabb - frame_origin``): what the fields and the grid are built
+        with and what the rays are clipped to."""
+        box = np.asarray(self.aabb, dtype=np.float64) - np.asarray(self.frame_origin)
+        return tuple(tuple(float(v) for v in row) for row in box)
 
 
 def _positive_int(value: Any, name: str, allow_zero: bool = False) -> None:
@@ -408,8 +439,8 @@ def build_field(model: ModelConfig, seed: int = 0, steps: int | None = None):
     gen = torch.Generator()
     gen.manual_seed(int(seed))
     if model.field == "kplanes":
-        return KPlanesField(model.aabb, resolution=model.resolution, n_features=model.n_features,
+        return KPlanesField(model.field_aabb, resolution=model.resolution, n_features=model.n_features,
                             multires=model.multires, view_dependent=model.view_dependent,
                             hidden=model.hidden, density_shift=model.density_shift, generator=gen)
     anneal = None if steps is None else max(1, int(steps) // 4)
-    return NeRFField(aabb=model.aabb, view_dependent=model.view_dependent, anneal_steps=anneal, generator=gen)
+    return NeRFField(aabb=model.field_aabb, view_dependent=model.view_dependent, anneal_steps=anneal, generator=gen)

@@ -11,6 +11,7 @@ import hashlib
 import json
 import math
 import time
+import warnings
 from dataclasses import dataclass, field as dc_field
 from pathlib import Path
 from typing import Callable
@@ -66,7 +67,7 @@ def make_occupancy(model, device):
         return None
     from senerf.fields import OccupancyGrid
 
-    grid = OccupancyGrid(model.aabb, model.occupancy_resolution, threshold=model.occupancy_threshold,
+    grid = OccupancyGrid(model.field_aabb, model.occupancy_resolution, threshold=model.occupancy_threshold,
                          decay=model.occupancy_decay)
     return grid.to(device)
 
@@ -93,13 +94,38 @@ def _fingerprint(cfg: TrainConfig, rays: RayBatchSource, field: torch.nn.Module)
 def _state(field, optimizer, generator, occupancy, step: int, fingerprint: str) -> dict:
     state = dict(format="senerf-train-1", step=int(step), fingerprint=fingerprint,
                  field=field.state_dict(), optimizer=optimizer.state_dict(),
-                 generator=generator.get_state())
+                 generator=generator.get_state(), generator_device=generator.device.type)
     if occupancy is not None:
         state["occupancy"] = occupancy.state_dict()
     return state
 
 
-def _restore(path: Path, field, optimizer, generator, occupancy, fingerprint: str, device) -> int:
+def _restore_generator(path: Path, generator: torch.Generator, state: dict, seed: int) -> None:
+    """The batch generator's state from a checkpoint; reseeded from ``(seed, step)`` with a warning when the
+    checkpoint was written on another device type (a CPU stream cannot continue as a CUDA one or back)."""
+    saved_on = state.get("generator_device")  # absent before this key existed: told by whether it loads
+    if saved_on in (None, generator.device.type):
+        try:
+            generator.set_state(state["generator"].cpu())
+            return
+        except (RuntimeError, AttributeError, TypeError):
+            if saved_on is not None:
+                raise InputError("its random-generator state is unreadable; delete it or use --overwrite",
+                                 file=path) from None
+            saved_on = "another device"
+    step = int(state["step"])
+    generator.manual_seed(_continuation_seed(seed, step))
+    warnings.warn(f"{path}: written on {saved_on}, resumed on {generator.device.type}: the random stream "
+                  f"cannot move between devices, so steps {step}+ draw from a new one seeded from (seed, step) "
+                  f"(reproducible, but not what an uninterrupted run gives)", stacklevel=3)
+
+
+def _continuation_seed(seed: int, step: int) -> int:
+    """The seed of the batch generator for a run resumed at ``step`` on another device type."""
+    return int(hashlib.sha256(f"senerf-resume:{int(seed)}:{int(step)}".encode()).hexdigest()[:15], 16)
+
+
+def _restore(path: Path, field, optimizer, generator, occupancy, fingerprint: str, device, seed: int) -> int:
     state = load_checkpoint(path, map_location=device)
     if state.get("format") != "senerf-train-1":
         raise InputError("not a senerf training checkpoint", file=path)
@@ -108,7 +134,7 @@ def _restore(path: Path, field, optimizer, generator, occupancy, fingerprint: st
                          "another output folder", file=path)
     field.load_state_dict(state["field"])
     optimizer.load_state_dict(state["optimizer"])
-    generator.set_state(state["generator"].cpu())
+    _restore_generator(path, generator, state, seed)
     if occupancy is not None:
         occupancy.load_state_dict(state["occupancy"])
     return int(state["step"])
@@ -129,7 +155,9 @@ def train_field(field: torch.nn.Module, rays: RayBatchSource, cfg: TrainConfig,
             this step renders with (None before ``cfg.occupancy_warmup``); must draw randomness only from
             ``generator``.
         checkpoint: a ``.pt`` path: resumed from when it exists, written atomically every
-            ``cfg.checkpoint_every`` steps and at the end.
+            ``cfg.checkpoint_every`` steps and at the end.  A resume on the device type the checkpoint
+            was written on ends bit for bit as an uninterrupted run; on another (CPU <-> CUDA) the ray
+            batches continue from a new stream seeded from ``(cfg.seed, step)``, with a warning.
         progress: show a tqdm bar (step, loss, PSNR, rays/s).
         log_every: steps between history entries / progress updates.
 
@@ -156,7 +184,7 @@ def train_field(field: torch.nn.Module, rays: RayBatchSource, cfg: TrainConfig,
     start = 0
     ckpt = Path(checkpoint) if checkpoint is not None else None
     if ckpt is not None and ckpt.exists():
-        start = _restore(ckpt, field, optimizer, generator, occupancy, fingerprint, device)
+        start = _restore(ckpt, field, optimizer, generator, occupancy, fingerprint, device, cfg.seed)
 
     history: list[dict] = []
     t_start = time.perf_counter()

@@ -49,7 +49,8 @@ def ray_aabb_bounds(origins: torch.Tensor, dirs: torch.Tensor, aabb, min_near: f
 
 def camera_rays(intrinsics, c2w: np.ndarray, model: ModelConfig, device: str | torch.device = "cpu"
                 ) -> dict[str, torch.Tensor]:
-    """The rays of whole images as the field sees them (world or NDC), with their bounds.
+    """The rays of whole images as the field sees them, with their bounds: in the model frame (the world
+    shifted by ``model.frame_origin``, in float64 before the cast) or in NDC.
 
     In NDC (``model.ndc``) the NDC directions are normalised to unit length so the field sees unit view
     directions; the NDC parameter ``t' in [0, 1]`` becomes the distance ``t' * |d_ndc|``, hence
@@ -72,6 +73,8 @@ def camera_rays(intrinsics, c2w: np.ndarray, model: ModelConfig, device: str | t
     if c2w.ndim != 3 or c2w.shape[1:] != (4, 4):
         raise ValueError(f"c2w must be (n, 4, 4), got {c2w.shape}")
     o, d, zpd = pixel_rays(intrinsics, c2w)
+    if not model.ndc:  # world -> model frame, in float64 (see ModelConfig.frame_origin)
+        o = o - np.asarray(model.frame_origin, dtype=np.float64)
 
     def tensor(a, cols):
         a = np.ascontiguousarray(a.reshape((-1, cols) if cols > 1 else (-1,)))
@@ -95,7 +98,7 @@ def camera_rays(intrinsics, c2w: np.ndarray, model: ModelConfig, device: str | t
     else:
         # min_near 1e-3, or 1e-3 box sizes for a box under 1 unit (an absolute 1e-3 empties a tiny scene's rays)
         size = min(hi - lo for lo, hi in zip(*model.aabb))
-        near, far = ray_aabb_bounds(o, d, model.aabb, min_near=min(1e-3, 1e-3 * size))
+        near, far = ray_aabb_bounds(o, d, model.field_aabb, min_near=min(1e-3, 1e-3 * size))
     out.update(origins=o, dirs=d, near=near, far=far)
     return out
 

@@ -64,6 +64,22 @@ def test_fused_kernel_equals_grid_sample(dtype):
     torch.testing.assert_close(torch.autograd.grad(fused, table, g)[0], torch.autograd.grad(ref, table, g)[0], **tol)
 
 
+def test_fused_kernel_refuses_points_off_the_cpu(monkeypatch):
+    """The C kernel reads raw host pointers: a CPU table with points on another device (``meta`` stands in
+    for CUDA here) must fall back (``None``) before any kernel is loaded or called."""
+    import senerf.fields.ckernel as ck
+
+    def no_kernel(*args, **kwargs):
+        raise AssertionError("the compiled CPU kernel was reached with points off the CPU")
+
+    monkeypatch.setattr(ck, "load_kernel", no_kernel)
+    gen = torch.Generator().manual_seed(2)
+    table, offs = _table_and_planes(torch.float32, gen)
+    u_meta = torch.empty(7, 3, device="meta")
+    assert fused_plane_features(table, u_meta, RES, offs) is None
+    assert fused_plane_features(table.to("meta"), _points(gen, torch.float32), RES, offs) is None
+
+
 def _field(backend="auto", **kw):
     return KPlanesField([[-1.0, -2.0, -1.0], [1.0, 2.0, 3.0]], resolution=6, n_features=4, multires=(1, 2),
                         generator=torch.Generator().manual_seed(0), backend=backend, **kw)

@@ -253,7 +253,8 @@ def test_oracle_masks_are_the_colour_error(tiny_scene, tiny_teacher):
     assert labels.foreground.all()                      # background pixels count too (paper Fig. 1)
     # the oracle's empty rays: right by the ground truth and below the empty opacity (a high empty opacity,
     # so that some low-opacity pixels are wrong by the ground truth and must be left out)
-    wide = SelfTrainConfig(reliability="oracle", oracle_max_error=0.2, empty_opacity=0.95)
+    wide = SelfTrainConfig(reliability="oracle", oracle_max_error=0.2, empty_opacity=0.95,
+                           opacity_threshold=0.95)
     labels_wide = controller_mod.oracle_reliability(res.field, res.occupancy, model, scene, held, wide)
     low = labels_wide.acc < 0.95
     assert np.any(low & (err < 0.2)) and np.any(low & (err >= 0.2))
@@ -274,7 +275,7 @@ def test_empty_space_pixels_become_reliable(tiny_scene, tiny_teacher):
     pseudo_c2w = np.asarray(scene.c2w[scene.splits["test"]], dtype=np.float64)
     out = {}
     for e in (0.0, 0.6):
-        cfg = SelfTrainConfig(features="daisy", empty_opacity=e)
+        cfg = SelfTrainConfig(features="daisy", empty_opacity=e, opacity_threshold=0.7)
         out[e] = controller_mod.estimate_reliability(res.field, res.occupancy, model, scene, train_idx, pseudo_c2w,
                                                      ext, cfg, 0.15)
     low = out[0.6].acc < 0.6
@@ -294,6 +295,11 @@ def test_empty_space_pixels_become_reliable(tiny_scene, tiny_teacher):
         dataclasses.replace(out[0.0], empty=~(out[0.0].weights > 0))
     with pytest.raises(InputError, match="empty_opacity"):
         SelfTrainConfig(batch_empty=256, empty_opacity=0.0)
+    # a foreground pixel (opacity >= opacity_threshold) is never labelled empty space, which would make it
+    # reliable whatever its similarity
+    with pytest.raises(InputError, match="empty_opacity: must be <= opacity_threshold"):
+        SelfTrainConfig(empty_opacity=0.6)
+    SelfTrainConfig(empty_opacity=0.5)
 
 
 # the "selftrain" block of metrics.json as senerf wrote it before batch_empty and student_grid existed

@@ -92,6 +92,58 @@ def test_resume_reproduces_uninterrupted_run(tmp_path):
     assert not torch.equal(init["table"], a["table"])
 
 
+def _as_if_written_on_cuda(src: Path, dst: Path, legacy: bool = False) -> None:
+    """A copy of CPU checkpoint ``src`` whose generator state is a CUDA one (16 bytes: seed, offset)."""
+    state = torch.load(src, weights_only=True)
+    state["generator"] = torch.zeros(16, dtype=torch.uint8)
+    if legacy:  # written before the checkpoint named its generator's device
+        state.pop("generator_device")
+    else:
+        assert state["generator_device"] == "cpu"
+        state["generator_device"] = "cuda"
+    torch.save(state, dst)
+
+
+@pytest.mark.parametrize("legacy", [False, True])
+def test_resume_on_another_device_type_reseeds_with_a_warning(tmp_path, legacy):
+    """A run started on a GPU and resumed on the CPU (the fingerprint leaves the device out on purpose)
+    continues, reproducibly, from a stream seeded from (seed, step) instead of failing on the foreign
+    generator state."""
+    rays, cfg = _rays(), _cfg()
+
+    def crash_at_8(field, step, generator, occupancy):
+        if step == 8:
+            raise _Crash()
+        return _zero_loss(field, step, generator, occupancy)
+
+    with pytest.raises(_Crash):
+        train_field(build_field(MODEL, seed=1), rays, cfg, extra_loss=crash_at_8, checkpoint=tmp_path / "b.pt",
+                    progress=False)
+    results = []
+    for k in range(2):
+        _as_if_written_on_cuda(tmp_path / "b.pt", tmp_path / f"gpu{k}.pt", legacy)
+        with pytest.warns(UserWarning, match=r"gpu\d\.pt: written on (cuda|another device), resumed on cpu"):
+            res = train_field(build_field(MODEL, seed=1), rays, cfg, extra_loss=_zero_loss,
+                              checkpoint=tmp_path / f"gpu{k}.pt", progress=False)
+        assert res.resumed_from == 5 and res.steps == cfg.steps
+        results.append(res.field.state_dict()["table"])
+    assert torch.equal(results[0], results[1])  # reproducible
+    same_device = train_field(build_field(MODEL, seed=1), rays, cfg, extra_loss=_zero_loss,
+                              checkpoint=tmp_path / "b.pt", progress=False)
+    assert not torch.equal(results[0], same_device.field.state_dict()["table"])  # a new stream, as it says
+
+
+def test_unreadable_generator_state_is_input_error(tmp_path):
+    rays = _rays()
+    train_field(build_field(MODEL, seed=0), rays, _cfg(steps=5), checkpoint=tmp_path / "c.pt", progress=False)
+    state = torch.load(tmp_path / "c.pt", weights_only=True)
+    state["generator"], state["step"] = torch.zeros(3, dtype=torch.uint8), 3
+    torch.save(state, tmp_path / "c.pt")
+    with pytest.raises(InputError, match="random-generator state is unreadable") as err:
+        train_field(build_field(MODEL, seed=0), rays, _cfg(steps=5), checkpoint=tmp_path / "c.pt", progress=False)
+    assert str(tmp_path / "c.pt") in str(err.value)
+
+
 def test_checkpoint_of_another_configuration_is_refused(tmp_path):
     rays = _rays()
     train_field(build_field(MODEL, seed=0), rays, _cfg(steps=5), checkpoint=tmp_path / "c.pt", progress=False)

@@ -1,0 +1,78 @@
+"""senerf/train/rays.py and ModelConfig's model frame: float32 rays keep their precision far from the origin."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from senerf.fields import render_rays
+from senerf.geometry import Intrinsics, look_at
+from senerf.train import ModelConfig, build_field, camera_rays
+
+K = Intrinsics(40.0, 40.0, 16.0, 12.0, 32, 24)
+BOX = ((-1.2, -1.0, -0.8), (1.2, 1.0, 0.8))
+
+
+def _c2w(offset) -> np.ndarray:
+    offset = np.asarray(offset, dtype=np.float64)
+    return look_at(np.array([3.0, -2.0, 1.5]) + offset, offset, np.array([0.0, 0.0, 1.0]))[None]
+
+
+def _model(offset) -> ModelConfig:
+    box = np.asarray(BOX) + np.asarray(offset, dtype=np.float64)
+    return ModelConfig(aabb=tuple(map(tuple, box)), resolution=8, multires=(1,), n_features=4, n_samples=16,
+                       occupancy_resolution=0)
+
+
+def test_frame_origin_is_zero_near_the_origin_and_absorbs_far_offsets():
+    assert _model((0, 0, 0)).frame_origin == (0.0, 0.0, 0.0)
+    assert _model((1.1, -0.9, 0.7)).frame_origin == (0.0, 0.0, 0.0)   # contains the origin: world frame
+    extent = np.asarray(BOX)[1] - np.asarray(BOX)[0]
+    for offset in [(1e6, -3e5, 2e4), (-7.3e7, 0.0, 1e-3), (2.5, -2.5, 1.7)]:
+        m = _model(offset)
+        local = np.asarray(m.field_aabb)
+        # the model-frame box is the same size and its centre within one extent of the origin per axis
+        np.testing.assert_allclose(local[1] - local[0], extent, atol=1e-6)
+        assert np.all(np.abs(local.mean(axis=0)) < extent)
+        np.testing.assert_allclose(np.asarray(m.frame_origin) + local, np.asarray(m.aabb), rtol=0, atol=1e-6)
+    assert ModelConfig(ndc=True, aabb=((-1.5, -1.5, -1), (1.5, 1.5, 1))).frame_origin == (0.0, 0.0, 0.0)
+
+
+@pytest.mark.parametrize("offset", [(1e6, 1e6, 1e6), (-3e7, 4e5, 2e6)])
+def test_rays_of_a_scene_far_from_the_origin_match_the_same_scene_at_the_origin(offset):
+    """Translate the cameras and the box together: the sample points in box coordinates are the same as at
+    the origin to float32 rounding of small numbers (before the model frame, a float32 origin at 1e6 is
+    only known to 0.06 units, 2.5 % of this box)."""
+    near_rays = camera_rays(K, _c2w((0, 0, 0)), _model((0, 0, 0)))
+    far_model = _model(offset)
+    far_rays = camera_rays(K, _c2w(offset), far_model)
+    shift = torch.as_tensor(np.asarray(offset) - np.asarray(far_model.frame_origin), dtype=torch.float64)
+
+    def box_coords(rays, lo):
+        t = 0.5 * (rays["near"] + rays["far"]).double()
+        pts = rays["origins"].double() + t[:, None] * rays["dirs"].double()
+        return (pts - torch.as_tensor(lo, dtype=torch.float64)) / torch.as_tensor(
+            np.asarray(BOX)[1] - np.asarray(BOX)[0])
+
+    torch.testing.assert_close(far_rays["dirs"], near_rays["dirs"], rtol=0, atol=1e-6)
+    torch.testing.assert_close(far_rays["near"], near_rays["near"], rtol=0, atol=2e-5)
+    torch.testing.assert_close(far_rays["far"], near_rays["far"], rtol=0, atol=2e-5)
+    torch.testing.assert_close(far_rays["origins"].double() - shift, near_rays["origins"].double(), rtol=0,
+                               atol=2e-6)
+    torch.testing.assert_close(box_coords(far_rays, far_model.field_aabb[0]),
+                               box_coords(near_rays, BOX[0]), rtol=0, atol=1e-5)
+
+
+def test_a_field_renders_the_same_image_far_from_the_origin():
+    offset = (2e6, -2e6, 5e5)
+    out = []
+    for off in [(0, 0, 0), offset]:
+        model = _model(off)
+        field = build_field(model, seed=0)
+        rays = camera_rays(K, _c2w(off), model)
+        with torch.no_grad():
+            r = render_rays(field, rays["origins"], rays["dirs"], rays["near"], rays["far"], model.n_samples,
+                            None, torch.ones(3), randomized=False)
+        out.append(r["rgb"])
+    torch.testing.assert_close(out[1], out[0], rtol=0, atol=1e-4)
