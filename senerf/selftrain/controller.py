@@ -40,8 +40,8 @@ import torch
 from .. import __version__, geometry
 from ..errors import InputError
 from ..train import (atomic_write_text, build_field, camera_rays, config_to_dict, differences_text, evaluate,
-                     load_checkpoint, make_occupancy, render_views, save_checkpoint, settings_differences, train_field,
-                     write_png)
+                     load_checkpoint, load_state_keeping_box, make_occupancy, render_views, save_checkpoint,
+                     settings_differences, train_field, write_png)
 from .distill import DistillationLoss, DistillConfig, PseudoRays, prior_weights, unified_prior_weights
 from .features import FEATURE_NAMES, known_view_features, make_feature_extractor
 from .reliability import (THRESHOLD_KINDS, gt_reliable_mask, mask_quality, resolve_threshold, threshold_weights,
@@ -464,13 +464,13 @@ def _load_teacher(path: Path, model, cfg_train, settings: dict, device):
     _check_settings(path, state, settings)
     iteration = int(state["iteration"])
     field = build_field(model, seed=cfg_train.seed, steps=cfg_train.steps).to(device)
-    field.load_state_dict(state["field"])
+    load_state_keeping_box(field, state["field"])
     if hasattr(field, "set_progress"):
         field.set_progress(cfg_train.steps)
     field.eval()
     occupancy = make_occupancy(model, device)
     if occupancy is not None and "occupancy" in state:
-        occupancy.load_state_dict(state["occupancy"])
+        load_state_keeping_box(occupancy, state["occupancy"])
     return field, occupancy, iteration, json.loads(state.get("iterations_json", "[]"))
 
 

@@ -24,7 +24,8 @@ from .checkpoint import load_checkpoint, save_checkpoint
 from .config import TrainConfig, config_to_dict
 from .rays import RayBatchSource
 
-__all__ = ["train_field", "TrainResult", "lr_factor", "make_occupancy", "background_color", "ExtraLoss"]
+__all__ = ["train_field", "TrainResult", "lr_factor", "make_occupancy", "background_color", "ExtraLoss",
+           "load_state_keeping_box"]
 
 #: ``extra_loss(field, step, generator, occupancy) -> (scalar loss tensor, {name: float})``; ``occupancy`` is
 #: the grid the step renders the real rays with (None before ``occupancy_warmup`` or without a grid)
@@ -100,6 +101,21 @@ def _state(field, optimizer, generator, occupancy, step: int, fingerprint: str) 
     return state
 
 
+def load_state_keeping_box(module: torch.nn.Module, state: dict) -> None:
+    """``module.load_state_dict(state)``, keeping the module's own ``aabb`` buffer.
+
+    The box is the :class:`ModelConfig`'s, in its model frame (``ModelConfig.field_aabb``), not a learned
+    value.  A checkpoint written before the model frame existed holds the same box in world coordinates;
+    the learned tables and grids are indexed by box-normalised coordinates, so they are the same in both
+    frames and only the box must stay the module's (the same box when the frame origin is 0).
+    """
+    state = dict(state)
+    box = getattr(module, "aabb", None)
+    if isinstance(box, torch.Tensor) and "aabb" in state:
+        state["aabb"] = box.detach().clone()
+    module.load_state_dict(state)
+
+
 def _restore_generator(path: Path, generator: torch.Generator, state: dict, seed: int) -> None:
     """The batch generator's state from a checkpoint; reseeded from ``(seed, step)`` with a warning when the
     checkpoint was written on another device type (a CPU stream cannot continue as a CUDA one or back)."""
@@ -132,11 +148,11 @@ def _restore(path: Path, field, optimizer, generator, occupancy, fingerprint: st
     if state.get("fingerprint") != fingerprint:
         raise InputError("checkpoint belongs to a different training configuration; delete it or use "
                          "another output folder", file=path)
-    field.load_state_dict(state["field"])
+    load_state_keeping_box(field, state["field"])
     optimizer.load_state_dict(state["optimizer"])
     _restore_generator(path, generator, state, seed)
     if occupancy is not None:
-        occupancy.load_state_dict(state["occupancy"])
+        load_state_keeping_box(occupancy, state["occupancy"])
     return int(state["step"])
 
 

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 import torch
@@ -76,3 +78,37 @@ def test_a_field_renders_the_same_image_far_from_the_origin():
                             None, torch.ones(3), randomized=False)
         out.append(r["rgb"])
     torch.testing.assert_close(out[1], out[0], rtol=0, atol=1e-4)
+
+
+def test_a_world_frame_checkpoint_loads_into_the_model_frame():
+    """A checkpoint written before the model frame holds the box in world coordinates; its learned values
+    are indexed by box-normalised coordinates, so loading it (keeping the module's box) renders as the field
+    that wrote it, where a plain ``load_state_dict`` would put the world box back and miss every point."""
+    from senerf.train import load_state_keeping_box, make_occupancy
+
+    offset = (4e5, 0.0, -2e5)
+    model = _model(offset)
+    writer = build_field(model, seed=0)
+    grid = make_occupancy(dataclasses.replace(model, occupancy_resolution=8), "cpu")
+    old_field, old_grid = writer.state_dict(), grid.state_dict()
+    world_box = torch.as_tensor(model.aabb, dtype=old_field["aabb"].dtype)
+    old_field["aabb"], old_grid["aabb"] = world_box.clone(), world_box.clone()
+
+    reader = build_field(model, seed=1)
+    load_state_keeping_box(reader, old_field)
+    reader_grid = make_occupancy(dataclasses.replace(model, occupancy_resolution=8), "cpu")
+    load_state_keeping_box(reader_grid, old_grid)
+    torch.testing.assert_close(reader.aabb, writer.aabb)
+    torch.testing.assert_close(reader_grid.aabb, grid.aabb)
+    rays = camera_rays(K, _c2w(offset), model)
+    with torch.no_grad():
+        a = render_rays(writer, rays["origins"], rays["dirs"], rays["near"], rays["far"], 16, None, torch.ones(3),
+                        randomized=False)["rgb"]
+        b = render_rays(reader, rays["origins"], rays["dirs"], rays["near"], rays["far"], 16, None, torch.ones(3),
+                        randomized=False)["rgb"]
+        plain = build_field(model, seed=1)
+        plain.load_state_dict(old_field)
+        c = render_rays(plain, rays["origins"], rays["dirs"], rays["near"], rays["far"], 16, None, torch.ones(3),
+                        randomized=False)["rgb"]
+    torch.testing.assert_close(b, a, rtol=0, atol=0)
+    assert (c - a).abs().max() > 0.01  # the world box in the model frame: the points fall outside it
