@@ -39,6 +39,18 @@ class _Crash(Exception):
     pass
 
 
+def _crash_at_step_8(rays, cfg, checkpoint) -> None:
+    """Train seed-1 field until step 8 raises, leaving the checkpoint of step 5 (checkpoint_every 5)."""
+    def crash_at_8(field, step, generator, occupancy):
+        if step == 8:
+            raise _Crash()
+        return _zero_loss(field, step, generator, occupancy)
+
+    with pytest.raises(_Crash):
+        train_field(build_field(MODEL, seed=1), rays, cfg, extra_loss=crash_at_8, checkpoint=checkpoint,
+                    progress=False)
+
+
 def test_ray_aabb_bounds_by_hand():
     o = torch.tensor([[0.0, 0.0, -3.0], [0.0, 0.0, 0.0], [5.0, 5.0, -3.0]])
     d = torch.tensor([[0.0, 0.0, 1.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
@@ -70,14 +82,7 @@ def test_resume_reproduces_uninterrupted_run(tmp_path):
     full = train_field(build_field(MODEL, seed=1), rays, cfg, extra_loss=_zero_loss,
                        checkpoint=tmp_path / "a.pt", progress=False)
 
-    def crash_at_8(field, step, generator, occupancy):
-        if step == 8:
-            raise _Crash()
-        return _zero_loss(field, step, generator, occupancy)
-
-    with pytest.raises(_Crash):
-        train_field(build_field(MODEL, seed=1), rays, cfg, extra_loss=crash_at_8, checkpoint=tmp_path / "b.pt",
-                    progress=False)
+    _crash_at_step_8(rays, cfg, tmp_path / "b.pt")
     assert torch.load(tmp_path / "b.pt", weights_only=True)["step"] == 5
     fresh = build_field(MODEL, seed=1)
     resumed = train_field(fresh, rays, cfg, extra_loss=_zero_loss, checkpoint=tmp_path / "b.pt", progress=False)
@@ -111,14 +116,7 @@ def test_resume_on_another_device_type_reseeds_with_a_warning(tmp_path, legacy):
     generator state."""
     rays, cfg = _rays(), _cfg()
 
-    def crash_at_8(field, step, generator, occupancy):
-        if step == 8:
-            raise _Crash()
-        return _zero_loss(field, step, generator, occupancy)
-
-    with pytest.raises(_Crash):
-        train_field(build_field(MODEL, seed=1), rays, cfg, extra_loss=crash_at_8, checkpoint=tmp_path / "b.pt",
-                    progress=False)
+    _crash_at_step_8(rays, cfg, tmp_path / "b.pt")
     results = []
     for k in range(2):
         _as_if_written_on_cuda(tmp_path / "b.pt", tmp_path / f"gpu{k}.pt", legacy)
