@@ -24,6 +24,7 @@ from .rays import pixel_centers, pixel_rays, rays_from_pixels
 from .spherical import (
     nearest_view_angles,
     closest_point_to_axes,
+    default_up,
     pose_from_spherical,
     sample_pseudo_views,
     spherical_basis,
@@ -46,6 +47,7 @@ __all__ = [
     "nearest_view_angles",
     "closest_point_to_axes",
     "sample_pseudo_views",
+    "default_up",
     "pixel_centers",
     "pixel_rays",
     "rays_from_pixels",
