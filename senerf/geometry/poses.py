@@ -91,6 +91,12 @@ def is_rigid(c2w, atol: float = 1e-4) -> np.ndarray:
     return ~(nf | no | nd | br)
 
 
+#: Tolerance of the rigidity check made by every public function that uses a pose's rotation as one
+#: (projection, rays, reprojection, pseudo-view sampling): loose enough for float32 and exported poses,
+#: tight enough to refuse a scaled matrix or a reflection, which would otherwise give wrong numbers silently.
+POSE_ATOL = 1e-3
+
+
 def validate_rigid(c2w, atol: float = 1e-4, name: str = "c2w") -> np.ndarray:
     """Return ``c2w`` (as a float array) if every pose is rigid, else raise ``ValueError`` saying what is wrong.
 

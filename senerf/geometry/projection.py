@@ -12,9 +12,9 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from ._util import as_float, check_last, check_pose
+from ._util import as_float, check_last
 from .intrinsics import Intrinsics
-from .poses import invert_rigid
+from .poses import POSE_ATOL, invert_rigid, validate_rigid
 
 __all__ = ["project", "unproject", "projection_matrix", "INVALID_UV", "INVALID_Z"]
 
@@ -33,7 +33,7 @@ def projection_matrix(intrinsics: Intrinsics, c2w) -> np.ndarray:
     """
     if not isinstance(intrinsics, Intrinsics):
         raise ValueError(f"intrinsics: expected an Intrinsics, got {type(intrinsics).__name__}")
-    pose = check_pose(c2w).astype(np.float64)
+    pose = validate_rigid(c2w, atol=POSE_ATOL).astype(np.float64)
     return intrinsics.K @ invert_rigid(pose)[..., :3, :]
 
 
@@ -171,7 +171,7 @@ def unproject(uv, z_depth, intrinsics: Intrinsics, c2w) -> np.ndarray:
     check_last(uv_a, (2,), "uv")
     dt = uv_a.dtype
     z = as_float(z_depth, "z_depth", dt)
-    pose = check_pose(c2w).astype(np.float64).astype(dt)
+    pose = validate_rigid(c2w, atol=POSE_ATOL).astype(np.float64).astype(dt)
     k = intrinsics
     z_b = np.broadcast_to(z, np.broadcast_shapes(z.shape, uv_a.shape[:-1]))
     cam = np.empty(z_b.shape + (3,), dtype=dt)

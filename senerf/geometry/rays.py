@@ -12,8 +12,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from ._util import as_float, check_last, check_pose
+from ._util import as_float, check_last
 from .intrinsics import Intrinsics
+from .poses import POSE_ATOL, validate_rigid
 
 __all__ = ["pixel_rays", "rays_from_pixels", "pixel_centers"]
 
@@ -69,7 +70,7 @@ def rays_from_pixels(uv, intrinsics: Intrinsics, c2w):
     _check_intrinsics(intrinsics)
     uv_a = as_float(uv, "uv")
     check_last(uv_a, (2,), "uv")
-    pose = check_pose(c2w).astype(np.float64)
+    pose = validate_rigid(c2w, atol=POSE_ATOL).astype(np.float64)
     dirs_cam, zpd = _camera_dirs(uv_a.astype(np.float64), intrinsics)
     dirs = np.einsum("...ij,...j->...i", pose[..., :3, :3], dirs_cam)
     origins = np.broadcast_to(pose[..., :3, 3], dirs.shape)
@@ -96,7 +97,7 @@ def pixel_rays(intrinsics: Intrinsics, c2w):
         True
     """
     _check_intrinsics(intrinsics)
-    pose = check_pose(c2w)
+    pose = validate_rigid(c2w, atol=POSE_ATOL)
     dt = pose.dtype
     p64 = pose.astype(np.float64)
     dirs_cam, zpd = _camera_dirs(pixel_centers(intrinsics), intrinsics)  # (H, W, 3), (H, W)

@@ -16,6 +16,7 @@ from __future__ import annotations
 import numpy as np
 
 from ._util import as_float, check_last, check_pose
+from .poses import POSE_ATOL, validate_rigid
 
 __all__ = [
     "pose_from_spherical",
@@ -254,7 +255,7 @@ def sample_pseudo_views(input_c2w, max_offset_deg, n, rng, center=None, up=None)
         >>> bool(np.allclose(same, inputs, atol=1e-12))
         True
     """
-    arr = check_pose(input_c2w, "input_c2w")
+    arr = validate_rigid(input_c2w, atol=POSE_ATOL, name="input_c2w")
     if arr.ndim != 3 or arr.shape[0] < 1:
         raise ValueError(f"input_c2w: expected shape (m, 4, 4) with m >= 1, got {arr.shape}")
     if not isinstance(rng, np.random.Generator):

@@ -32,9 +32,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from ._util import as_float, check_pose
+from ._util import as_float
 from .intrinsics import Intrinsics
-from .poses import invert_rigid
+from .poses import POSE_ATOL, invert_rigid, validate_rigid
 from .projection import INVALID_UV, INVALID_Z
 
 __all__ = ["reproject"]
@@ -109,10 +109,10 @@ def reproject(
     dt = zs.dtype
     if zs.shape != intrinsics_src.size:
         raise ValueError(f"z_depth_src: expected shape {intrinsics_src.size} (H, W), got {zs.shape}")
-    src = check_pose(c2w_src, "c2w_src").astype(np.float64)
+    src = validate_rigid(c2w_src, atol=POSE_ATOL, name="c2w_src").astype(np.float64)
     if src.ndim != 2:
         raise ValueError(f"c2w_src: expected a single pose (4, 4), got {src.shape}")
-    dst = check_pose(c2w_dst, "c2w_dst").astype(np.float64)
+    dst = validate_rigid(c2w_dst, atol=POSE_ATOL, name="c2w_dst").astype(np.float64)
     batch = dst.shape[:-2]
     dst = dst.reshape((-1,) + dst.shape[-2:])
     hd, wd = intrinsics_dst.size
