@@ -139,8 +139,9 @@ def spherical_from_pose(c2w, center=(0.0, 0.0, 0.0), up=(0.0, 0.0, 1.0)):
     pole = np.hypot(p1, p2) <= 1e-12 * r
     az = np.where(pole, np.arctan2(-np.sum(x * e1, axis=-1), np.sum(x * e2, axis=-1)), np.arctan2(p2, p1))
     az = np.degrees(az)
-    az = np.where(az <= -180.0, az + 360.0, az)
-    return az.astype(dtype), el.astype(dtype), r.astype(dtype)
+    az = np.where(az <= -180.0, az + 360.0, az).astype(dtype)
+    az = np.where(az <= -180.0, dtype.type(180.0), az)  # -179.999999 may round to -180 in float32
+    return az, el.astype(dtype), r.astype(dtype)
 
 
 def closest_point_to_axes(c2w) -> np.ndarray:

@@ -240,3 +240,13 @@ def test_default_up_is_the_common_horizon_normal():
     with pytest.raises(ValueError, match="cancel out"):
         flipped = np.stack([one[0], one[0] @ np.diag([-1.0, -1.0, 1.0, 1.0])])  # rolled by 180: ups cancel
         default_up(flipped)
+
+
+@pytest.mark.parametrize("dtype", DTYPES)
+def test_azimuth_stays_in_the_half_open_range_after_the_cast(dtype):
+    """(-180, 180] in the output dtype: an azimuth a hair above -180 rounds to -180 in float32 and must
+    come back as +180 (the same direction)."""
+    pose = pose_from_spherical(np.array([-179.999999, 180.0, -180.0, 179.9]), 10.0, 4.0).astype(dtype)
+    az, _, _ = spherical_from_pose(pose)
+    assert az.dtype == dtype and np.all(az > -180.0) and np.all(az <= 180.0)
+    np.testing.assert_allclose(wrap(az.astype(np.float64) - [-179.999999, 180.0, 180.0, 179.9]), 0, atol=1e-4)
