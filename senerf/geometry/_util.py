@@ -45,3 +45,11 @@ def check_pose(c2w, name: str = "c2w", allow_3x4: bool = True) -> np.ndarray:
         want = "(..., 4, 4) or (..., 3, 4)" if allow_3x4 else "(..., 4, 4)"
         raise ValueError(f"{name}: expected shape {want}, got {arr.shape}")
     return arr
+
+
+def as_4x4(c2w: np.ndarray) -> np.ndarray:
+    """``(..., 3, 4)`` poses completed with the row ``[0, 0, 0, 1]``; ``(..., 4, 4)`` returned as is."""
+    if c2w.shape[-2] == 4:
+        return c2w
+    last = np.broadcast_to(np.array([0.0, 0.0, 0.0, 1.0], dtype=c2w.dtype), c2w.shape[:-2] + (1, 4))
+    return np.concatenate([c2w, last], axis=-2)

@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ._util import as_float, check_last, check_pose
+from ._util import as_4x4, as_float, check_last, check_pose
 from .poses import POSE_ATOL, validate_rigid
 
 __all__ = [
@@ -268,8 +268,7 @@ def sample_pseudo_views(input_c2w, max_offset_deg, n, rng, center=None, up=None)
         raise ValueError(f"n: must be an integer >= 0, got {n!r}")
     n = int(n)
     a = arr.astype(np.float64)
-    if a.shape[1] == 3:
-        a = np.concatenate([a, np.broadcast_to([[[0.0, 0.0, 0.0, 1.0]]], (a.shape[0], 1, 4))], axis=1)
+    a = as_4x4(a)
     if center is None:
         center = closest_point_to_axes(a)
     c = as_float(center, "center", np.float64).reshape(3)

@@ -32,7 +32,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ._util import as_float
+from ._util import as_4x4, as_float
 from .intrinsics import Intrinsics
 from .poses import POSE_ATOL, invert_rigid, validate_rigid
 from .projection import INVALID_UV, INVALID_Z
@@ -80,9 +80,9 @@ def reproject(
     Args:
         z_depth_src: ``(H, W)`` source z-depth; non-positive or non-finite pixels are invalid.
         intrinsics_src: source :class:`Intrinsics` (size ``H x W``).
-        c2w_src: ``(4, 4)`` source camera-to-world (OpenCV).
+        c2w_src: ``(4, 4)`` (or ``(3, 4)``) source camera-to-world (OpenCV).
         intrinsics_dst: destination :class:`Intrinsics` (size ``H' x W'``), shared by all destinations.
-        c2w_dst: ``(..., 4, 4)`` destination camera-to-world poses.
+        c2w_dst: ``(..., 4, 4)`` (or ``(..., 3, 4)``) destination camera-to-world poses.
         z_depth_dst: optional ``(..., H', W')`` destination z-depths (batch equal to ``c2w_dst``'s) for the
             occlusion test; non-positive / non-finite = no surface.
         rel_tol, abs_tol, slope_tol: occlusion-test tolerances (module docstring).
@@ -109,10 +109,10 @@ def reproject(
     dt = zs.dtype
     if zs.shape != intrinsics_src.size:
         raise ValueError(f"z_depth_src: expected shape {intrinsics_src.size} (H, W), got {zs.shape}")
-    src = validate_rigid(c2w_src, atol=POSE_ATOL, name="c2w_src").astype(np.float64)
+    src = as_4x4(validate_rigid(c2w_src, atol=POSE_ATOL, name="c2w_src").astype(np.float64))
     if src.ndim != 2:
         raise ValueError(f"c2w_src: expected a single pose (4, 4), got {src.shape}")
-    dst = validate_rigid(c2w_dst, atol=POSE_ATOL, name="c2w_dst").astype(np.float64)
+    dst = as_4x4(validate_rigid(c2w_dst, atol=POSE_ATOL, name="c2w_dst").astype(np.float64))
     batch = dst.shape[:-2]
     dst = dst.reshape((-1,) + dst.shape[-2:])
     hd, wd = intrinsics_dst.size

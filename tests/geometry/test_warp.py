@@ -250,3 +250,15 @@ def test_matches_unproject_then_project_random_scenes():
         assert ok.mean() > 0.05
         np.testing.assert_allclose(uv[ok], uv_ref[ok], atol=1e-8)
         np.testing.assert_allclose(zd[ok], z_ref[ok], rtol=1e-10)
+
+
+def test_three_by_four_poses_warp_as_their_four_by_four():
+    """(3, 4) poses, which every other pose function accepts, give the same warp as the (4, 4) ones."""
+    src = look_at(np.array([0.3, -0.2, -4.0]), np.zeros(3))
+    dst = look_at(np.array([[1.5, 0.4, -3.8], [-1.0, 1.0, -4.2]]), np.zeros(3))
+    depth = np.full((K.height, K.width), 4.0)
+    full = reproject(depth, K, src, K, dst, z_depth_dst=np.full((2, K.height, K.width), 4.0))
+    short = reproject(depth, K, src[:3], K, dst[:, :3], z_depth_dst=np.full((2, K.height, K.width), 4.0))
+    assert full[1].any()
+    for a, b in zip(full, short):
+        np.testing.assert_array_equal(a, b)
