@@ -305,6 +305,9 @@ def nearest_view_angles(train_c2w: np.ndarray, test_c2w: np.ndarray,
 
     Returns:
         (n,) float64 degrees in [0, 180].
+
+    Raises:
+        ValueError: a non-finite pose, or a camera centre at ``center`` (its direction from it is undefined).
     """
     train_c2w, test_c2w = np.asarray(train_c2w, np.float64), np.asarray(test_c2w, np.float64)
     for name, a in (("train_c2w", train_c2w), ("test_c2w", test_c2w)):
@@ -315,8 +318,13 @@ def nearest_view_angles(train_c2w: np.ndarray, test_c2w: np.ndarray,
     else:
         c = np.asarray(center, np.float64).reshape(3)
         d_tr, d_te = train_c2w[:, :3, 3] - c, test_c2w[:, :3, 3] - c
-    d_tr /= np.linalg.norm(d_tr, axis=-1, keepdims=True)
-    d_te /= np.linalg.norm(d_te, axis=-1, keepdims=True)
+    for name, d in (("train_c2w", d_tr), ("test_c2w", d_te)):
+        norm = np.linalg.norm(d, axis=-1, keepdims=True)
+        if not (np.isfinite(norm).all() and (norm > 0).all()):
+            bad = int(np.flatnonzero(~(np.isfinite(norm[:, 0]) & (norm[:, 0] > 0)))[0])
+            what = "a camera centre at center" if center is not None else "a zero optical axis"
+            raise ValueError(f"{name}[{bad}]: non-finite pose or {what}: its direction is undefined")
+        d /= norm
     dot = d_te @ d_tr.T                                                        # (n, m)
     cross = np.linalg.norm(np.cross(d_te[:, None, :], d_tr[None, :, :]), axis=-1)  # (n, m)
     return np.degrees(np.arctan2(cross, dot).min(axis=1))                      # precise near 0 and 180

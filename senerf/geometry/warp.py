@@ -105,6 +105,10 @@ def reproject(
     """
     _check_k(intrinsics_src, "intrinsics_src")
     _check_k(intrinsics_dst, "intrinsics_dst")
+    for name, tol in (("rel_tol", rel_tol), ("abs_tol", abs_tol), ("slope_tol", slope_tol),
+                      ("fb_px_tol", fb_px_tol), ("fb_rel_tol", fb_rel_tol)):
+        if not (np.isfinite(tol) and tol >= 0):
+            raise ValueError(f"{name}: must be finite and >= 0, got {tol!r}")
     zs = as_float(z_depth_src, "z_depth_src")
     dt = zs.dtype
     if zs.shape != intrinsics_src.size:

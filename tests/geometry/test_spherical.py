@@ -250,3 +250,19 @@ def test_azimuth_stays_in_the_half_open_range_after_the_cast(dtype):
     az, _, _ = spherical_from_pose(pose)
     assert az.dtype == dtype and np.all(az > -180.0) and np.all(az <= 180.0)
     np.testing.assert_allclose(wrap(az.astype(np.float64) - [-179.999999, 180.0, 180.0, 179.9]), 0, atol=1e-4)
+
+
+def test_nearest_view_angles_refuses_undefined_directions():
+    from senerf.geometry import nearest_view_angles
+
+    train = pose_from_spherical(np.array([0.0, 90.0]), 0.0, 4.0)
+    test = pose_from_spherical(np.array([45.0]), 0.0, 4.0)
+    np.testing.assert_allclose(nearest_view_angles(train, test), [45.0], atol=1e-9)
+    at_centre = test.copy()
+    at_centre[0, :3, 3] = 0.0
+    with pytest.raises(ValueError, match=r"test_c2w\[0\]: .*camera centre at center"):
+        nearest_view_angles(train, at_centre)
+    nan_pose = train.copy()
+    nan_pose[1, 0, 3] = np.nan
+    with pytest.raises(ValueError, match=r"train_c2w\[1\]: non-finite"):
+        nearest_view_angles(nan_pose, test)

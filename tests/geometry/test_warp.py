@@ -262,3 +262,12 @@ def test_three_by_four_poses_warp_as_their_four_by_four():
     assert full[1].any()
     for a, b in zip(full, short):
         np.testing.assert_array_equal(a, b)
+
+
+@pytest.mark.parametrize("name", ["rel_tol", "abs_tol", "slope_tol", "fb_px_tol", "fb_rel_tol"])
+def test_negative_or_non_finite_tolerances_are_refused(name):
+    depth = np.full((K.height, K.width), 4.0)
+    pose = look_at(np.array([0.0, 0.0, -4.0]), np.zeros(3))
+    for bad in (-0.01, float("nan"), float("inf")):
+        with pytest.raises(ValueError, match=rf"{name}: must be finite and >= 0"):
+            reproject(depth, K, pose, K, pose, z_depth_dst=depth, **{name: bad})
