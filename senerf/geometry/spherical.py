@@ -217,7 +217,8 @@ def default_up(input_c2w) -> np.ndarray:
     if eigval[1] - eigval[0] > 0.01 and norm > 1e-6 and abs(normal @ mean_up) > 0.5 * norm:
         return normal * np.sign(normal @ mean_up)
     if not norm > 1e-6:
-        raise ValueError("sample_pseudo_views: the input cameras' image-up axes cancel out; pass up explicitly")
+        raise ValueError("default_up: the input cameras' image-up axes cancel out and their x axes do not "
+                         "fix a horizon; pass up explicitly")
     return mean_up / norm
 
 
@@ -267,8 +268,7 @@ def sample_pseudo_views(input_c2w, max_offset_deg, n, rng, center=None, up=None)
     if int(n) != n or n < 0:
         raise ValueError(f"n: must be an integer >= 0, got {n!r}")
     n = int(n)
-    a = arr.astype(np.float64)
-    a = as_4x4(a)
+    a = as_4x4(arr.astype(np.float64))
     if center is None:
         center = closest_point_to_axes(a)
     c = as_float(center, "center", np.float64).reshape(3)
