@@ -65,7 +65,8 @@ def camera_rays(intrinsics, c2w: np.ndarray, model: ModelConfig, device: str | t
     Returns:
         dict of float32 tensors flattened over ``(n, H, W)``: ``origins (R, 3)``, ``dirs (R, 3)`` unit,
         ``near (R,)``, ``far (R,)``, and for :func:`ray_dist_to_z_depth`: ``z_per_dist (R,)``,
-        ``world_oz (R,)``, ``world_dz (R,)``, ``ndc_len (R,)`` (1 outside NDC).
+        ``world_oz (R,)``, ``world_dz (R,)`` (used in NDC, where they are the world's; outside NDC the origin's
+        z is the model frame's), ``ndc_len (R,)`` (1 outside NDC).
     """
     from senerf.geometry import pixel_rays
 

@@ -1,5 +1,6 @@
 """Tests of senerf/geometry/spherical.py."""
 
+import cv2
 import numpy as np
 import pytest
 from hypothesis import given, settings
@@ -172,11 +173,9 @@ def test_sample_pseudo_views_zero_offset_explicit_center_up_and_errors():
 
 
 def _rodrigues(axis, angle_deg):
-    """Rotation matrix about unit ``axis`` by ``angle_deg`` (right hand), written out independently."""
+    """Rotation about ``axis`` by ``angle_deg`` (right hand), by OpenCV's Rodrigues (independent of senerf)."""
     k = np.asarray(axis, float) / np.linalg.norm(axis)
-    kx = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
-    t = np.radians(angle_deg)
-    return np.eye(3) + np.sin(t) * kx + (1 - np.cos(t)) * kx @ kx
+    return cv2.Rodrigues(k * np.radians(angle_deg))[0]
 
 
 def _rolled_off_axis_inputs():

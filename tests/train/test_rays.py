@@ -27,6 +27,13 @@ def _model(offset) -> ModelConfig:
                        occupancy_resolution=0)
 
 
+def _render(field, rays, model) -> torch.Tensor:
+    """``(R, 3)`` colours of ``rays`` (from :func:`camera_rays`), deterministic samples, white background."""
+    with torch.no_grad():
+        return render_rays(field, rays["origins"], rays["dirs"], rays["near"], rays["far"], model.n_samples, None,
+                           torch.ones(3), randomized=False)["rgb"]
+
+
 def test_frame_origin_is_zero_near_the_origin_and_absorbs_far_offsets():
     assert _model((0, 0, 0)).frame_origin == (0.0, 0.0, 0.0)
     assert _model((1.1, -0.9, 0.7)).frame_origin == (0.0, 0.0, 0.0)   # contains the origin: world frame
@@ -68,15 +75,8 @@ def test_rays_of_a_scene_far_from_the_origin_match_the_same_scene_at_the_origin(
 
 def test_a_field_renders_the_same_image_far_from_the_origin():
     offset = (2e6, -2e6, 5e5)
-    out = []
-    for off in [(0, 0, 0), offset]:
-        model = _model(off)
-        field = build_field(model, seed=0)
-        rays = camera_rays(K, _c2w(off), model)
-        with torch.no_grad():
-            r = render_rays(field, rays["origins"], rays["dirs"], rays["near"], rays["far"], model.n_samples,
-                            None, torch.ones(3), randomized=False)
-        out.append(r["rgb"])
+    out = [_render(build_field(_model(off), seed=0), camera_rays(K, _c2w(off), _model(off)), _model(off))
+           for off in [(0, 0, 0), offset]]
     torch.testing.assert_close(out[1], out[0], rtol=0, atol=1e-4)
 
 
@@ -100,15 +100,8 @@ def test_a_world_frame_checkpoint_loads_into_the_model_frame():
     load_state_keeping_box(reader_grid, old_grid)
     torch.testing.assert_close(reader.aabb, writer.aabb)
     torch.testing.assert_close(reader_grid.aabb, grid.aabb)
-    rays = camera_rays(K, _c2w(offset), model)
-    with torch.no_grad():
-        a = render_rays(writer, rays["origins"], rays["dirs"], rays["near"], rays["far"], 16, None, torch.ones(3),
-                        randomized=False)["rgb"]
-        b = render_rays(reader, rays["origins"], rays["dirs"], rays["near"], rays["far"], 16, None, torch.ones(3),
-                        randomized=False)["rgb"]
-        plain = build_field(model, seed=1)
-        plain.load_state_dict(old_field)
-        c = render_rays(plain, rays["origins"], rays["dirs"], rays["near"], rays["far"], 16, None, torch.ones(3),
-                        randomized=False)["rgb"]
+    plain = build_field(model, seed=1)
+    plain.load_state_dict(old_field)
+    a, b, c = (_render(f, camera_rays(K, _c2w(offset), model), model) for f in (writer, reader, plain))
     torch.testing.assert_close(b, a, rtol=0, atol=0)
     assert (c - a).abs().max() > 0.01  # the world box in the model frame: the points fall outside it
