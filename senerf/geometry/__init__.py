@@ -6,7 +6,9 @@ Conventions (see DESIGN.md): OpenCV camera frame (x right, y down, z forward); p
 ``c2w (..., 4, 4)``; pixel ``(i, j)`` covers ``[i, i+1) x [j, j+1)`` with its centre at ``i + 0.5``;
 ``z_depth`` is camera-frame z, ``ray_dist`` the distance along a unit ray; public angles are degrees.
 Dtypes: the data argument (points, uv, depth, eye, azimuth, c2w for pose functions) decides the output
-dtype: float32 stays float32, everything else becomes float64.  Poses are composed in float64.
+dtype: float32 stays float32, everything else becomes float64.  Poses are composed in float64, and
+``project`` applies them in float64 (float32 points far from the origin keep their precision).  Lengths
+are taken after an exact power-of-two rescaling, so directions stay exact from 1e-300 to 1e300.
 """
 
 from .intrinsics import Intrinsics

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["float_dtype", "as_float", "check_last", "check_pose"]
+__all__ = ["float_dtype", "as_float", "check_last", "check_pose", "as_4x4", "unit_and_norm", "pow2_scale"]
 
 
 def float_dtype(x) -> np.dtype:
@@ -53,3 +53,30 @@ def as_4x4(c2w: np.ndarray) -> np.ndarray:
         return c2w
     last = np.broadcast_to(np.array([0.0, 0.0, 0.0, 1.0], dtype=c2w.dtype), c2w.shape[:-2] + (1, 4))
     return np.concatenate([c2w, last], axis=-2)
+
+
+def unit_and_norm(v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Unit vectors ``(..., 3)`` and lengths ``(...)`` of float64 ``v (..., 3)``, safe at any finite scale.
+
+    Each row is divided by a power of two near its largest ``|v_i|`` (an exact division) before
+    the norm is taken, so lengths near 1e-200 or 1e200 (whose squares underflow or overflow) still give
+    exact directions.  A zero row gives ``(0, 0)``; a length beyond the float64 range comes back ``inf``
+    with a finite direction.
+    """
+    scale = pow2_scale(v)
+    scaled = v / scale
+    n = np.linalg.norm(scaled, axis=-1, keepdims=True)
+    with np.errstate(over="ignore"):
+        length = (scale * n)[..., 0]
+    return scaled / np.where(n > 0, n, 1.0), length
+
+
+def pow2_scale(*vs: np.ndarray) -> np.ndarray:
+    """``(..., 1)`` power of two within a factor 2 of the largest ``|entry|`` of the rows of ``vs``.
+
+    Scaled rows have entries below 2 (1 for zero rows, which stay zero).  Dividing by a power of two is
+    exact (barring subnormals), so differences of scaled rows keep every bit and cannot overflow.
+    """
+    peak = np.max([np.max(np.abs(v), axis=-1, keepdims=True) for v in vs], axis=0)
+    _, exponent = np.frexp(peak)  # peak = m 2**exponent, m in [0.5, 1): 2**(exponent - 1) <= peak
+    return np.where(peak > 0, np.ldexp(1.0, exponent - 1), 1.0)

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ._util import as_float, check_last, check_pose
+from ._util import as_float, check_last, check_pose, pow2_scale, unit_and_norm
 
 __all__ = [
     "opengl_to_opencv",
@@ -181,11 +181,6 @@ def invert_rigid(c2w) -> np.ndarray:
     return out
 
 
-def _normalize(v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    n = np.linalg.norm(v, axis=-1, keepdims=True)
-    return v / np.maximum(n, 1e-300), n[..., 0]
-
-
 def look_at(eye, target, up=(0.0, 0.0, 1.0)) -> np.ndarray:
     """OpenCV camera at ``eye`` looking at ``target``: z toward the target, y down, image up toward ``up``.
 
@@ -223,10 +218,11 @@ def look_at(eye, target, up=(0.0, 0.0, 1.0)) -> np.ndarray:
         if not np.isfinite(arr).all():
             raise ValueError(f"look_at: {nm} has non-finite entries")
     e, t, u = np.broadcast_arrays(e, t, u)
-    z, dist = _normalize(t - e)
+    scale = pow2_scale(e, t)  # exact: t - e neither overflows nor loses bits
+    z, dist = unit_and_norm(t / scale - e / scale)
     if (dist <= 0.0).any():
         raise ValueError("look_at: eye == target, the view direction is undefined")
-    u, un = _normalize(u)
+    u, un = unit_and_norm(u)
     if (un <= 0.0).any():
         raise ValueError("look_at: up is the zero vector")
     x_raw = np.cross(z, u)
@@ -236,8 +232,8 @@ def look_at(eye, target, up=(0.0, 0.0, 1.0)) -> np.ndarray:
         # Fallback: the world axis least parallel to z (smallest |z_i|).
         axis = np.eye(3)[np.argmin(np.abs(z), axis=-1)]
         x_raw = np.where(pole[..., None], np.cross(z, axis), x_raw)
-    x, _ = _normalize(x_raw)
-    x, _ = _normalize(x - np.sum(x * z, axis=-1, keepdims=True) * z)  # exact orthogonality to z
+    x, _ = unit_and_norm(x_raw)
+    x, _ = unit_and_norm(x - np.sum(x * z, axis=-1, keepdims=True) * z)  # exact orthogonality to z
     y = np.cross(z, x)
     out = np.zeros(e.shape[:-1] + (4, 4))
     out[..., :3, 0] = x

@@ -3,8 +3,9 @@
 Convention:
     OpenCV camera (x right, y down, z forward); ``uv`` in the pixel-centre-at-``i + 0.5`` system, so the
     image covers ``[0, W) x [0, H)``; ``z_depth`` is the camera-frame z (not the distance along the ray).
-    ``w2c`` and ``K w2c`` are composed in float64, then applied in the dtype of the points
-    (float32 stays float32).
+    ``w2c`` and ``K w2c`` are composed in float64 and applied in float64 whatever the points' dtype (a
+    float32 point is exact in float64; applying ``K [R|t]`` in float32 cancels catastrophically far from
+    the origin: 0.5 px of error for points 1e5 from it); the results come back in the points' dtype.
 """
 
 from __future__ import annotations
@@ -61,8 +62,7 @@ def project(points_world, intrinsics: Intrinsics, c2w, near: float = 1e-8):
     """
     pts = as_float(points_world, "points_world")
     check_last(pts, (3,), "points_world")
-    dt = pts.dtype
-    mat = projection_matrix(intrinsics, c2w).astype(dt)
+    mat = projection_matrix(intrinsics, c2w)
     with np.errstate(invalid="ignore", over="ignore"):  # non-finite points are reported invalid, not warned
         return _project(pts, mat, intrinsics, near)
 
@@ -72,9 +72,9 @@ def _project(pts: np.ndarray, mat: np.ndarray, intrinsics: Intrinsics, near: flo
         batch = pts.shape[:-1]
         uv, z, valid = _project_flat(pts.reshape(-1, 3), mat, intrinsics, near)
         return uv.reshape(batch + (2,)), z.reshape(batch), valid.reshape(batch)
-    uvw = np.matmul(mat[..., :3], pts[..., None])[..., 0]
+    uvw = np.matmul(mat[..., :3], pts.astype(np.float64)[..., None])[..., 0]
     uvw += mat[..., 3]
-    return _finish(uvw[..., 0], uvw[..., 1], uvw[..., 2], intrinsics, near)
+    return _finish(uvw[..., 0], uvw[..., 1], uvw[..., 2], intrinsics, near, pts.dtype)
 
 
 _CHUNK = 1 << 14
@@ -85,8 +85,10 @@ def _project_flat(pts: np.ndarray, mat: np.ndarray, intrinsics: Intrinsics, near
 
     Works in chunks of 16 k points with preallocated scratch buffers, so the temporaries stay in cache and
     memory traffic is close to reading the input and writing the outputs once
-    (``benchmarks/bench_geometry.py``).  ``cv2.transform`` applies the ``3 x 4`` matrix to the interleaved
-    points in one pass; the rest is the arithmetic of :func:`_finish`.
+    (``benchmarks/bench_geometry.py``).  ``cv2.transform`` applies the float64 ``3 x 4`` matrix to the
+    interleaved points in one pass (float32 points are widened chunk by chunk first); the rest is the
+    arithmetic of :func:`_finish`, each quotient rounded once to the points' dtype and the bounds tested on
+    the rounded values (a float32 ``u`` just under ``W`` may round to ``W``).
     """
     n, dt = pts.shape[0], pts.dtype
     pts = np.ascontiguousarray(pts)
@@ -95,18 +97,23 @@ def _project_flat(pts: np.ndarray, mat: np.ndarray, intrinsics: Intrinsics, near
     valid = np.empty(n, dtype=bool)
     width, height = dt.type(intrinsics.width), dt.type(intrinsics.height)
     c = min(_CHUNK, max(n, 1))
-    hom_buf = np.empty((c, 1, 3), dtype=dt)
+    hom_buf = np.empty((c, 1, 3))
+    wide_buf = None if dt == np.float64 else np.empty((c, 1, 3))
     u_buf, v_buf = np.empty(c, dtype=dt), np.empty(c, dtype=dt)
     tmp_buf = np.empty(c, dtype=bool)
     for start in range(0, n, c):
         stop = min(start + c, n)
         m = stop - start
         u, v, tmp, ok, z = u_buf[:m], v_buf[:m], tmp_buf[:m], valid[start:stop], z_out[start:stop]
-        hom = cv2.transform(pts[start:stop].reshape(m, 1, 3), mat, dst=hom_buf[:m]).reshape(m, 3)
-        np.copyto(z, hom[:, 2])
+        src = pts[start:stop].reshape(m, 1, 3)
+        if wide_buf is not None:
+            np.copyto(wide_buf[:m], src)
+            src = wide_buf[:m]
+        hom = cv2.transform(src, mat, dst=hom_buf[:m]).reshape(m, 3)
         with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
-            np.divide(hom[:, 0], z, out=u)
-            np.divide(hom[:, 1], z, out=v)
+            np.copyto(z, hom[:, 2], casting="same_kind")
+            np.divide(hom[:, 0], hom[:, 2], out=u, casting="same_kind")
+            np.divide(hom[:, 1], hom[:, 2], out=v, casting="same_kind")
             np.greater(z, near, out=ok)
             for arr, op, bound in ((z, np.less, np.inf), (u, np.greater_equal, 0.0), (u, np.less, width),
                                    (v, np.greater_equal, 0.0), (v, np.less, height)):
@@ -122,14 +129,15 @@ def _project_flat(pts: np.ndarray, mat: np.ndarray, intrinsics: Intrinsics, near
     return uv, z_out, valid
 
 
-def _finish(u_h: np.ndarray, v_h: np.ndarray, z: np.ndarray, intrinsics: Intrinsics, near: float):
-    """Homogeneous image coordinates ``(...)`` x 3 -> ``(uv (..., 2), z (...), valid (...))`` with placeholders.
+def _finish(u_h: np.ndarray, v_h: np.ndarray, z_h: np.ndarray, intrinsics: Intrinsics, near: float, dtype):
+    """Float64 homogeneous image coordinates ``(...)`` x 3 -> ``(uv (..., 2), z (...), valid (...))``.
 
-    May overwrite ``u_h``, ``v_h`` and ``z`` when they are scratch arrays.
+    The quotients are rounded to ``dtype`` before the bounds are tested; invalid entries get placeholders.
     """
     with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
-        u = np.divide(u_h, z)
-        v = np.divide(v_h, z)
+        u = np.divide(u_h, z_h).astype(dtype, copy=False)
+        v = np.divide(v_h, z_h).astype(dtype, copy=False)
+        z = z_h.astype(dtype, copy=False)
         valid = z > near
         valid &= z < np.inf
         valid &= u >= 0.0  # NaN compares false

@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ._util import as_4x4, as_float, check_last, check_pose
+from ._util import as_4x4, as_float, check_last, check_pose, unit_and_norm
 from .poses import POSE_ATOL, validate_rigid
 
 __all__ = [
@@ -33,10 +33,12 @@ MAX_PSEUDO_ELEVATION_DEG = 89.9
 
 
 def _unit(v: np.ndarray, name: str) -> np.ndarray:
-    n = np.linalg.norm(v, axis=-1, keepdims=True)
-    if not np.isfinite(v).all() or (n <= 0).any():
+    if not np.isfinite(v).all():
         raise ValueError(f"{name}: must be finite and non-zero")
-    return v / n
+    unit, n = unit_and_norm(v)
+    if (n <= 0).any():
+        raise ValueError(f"{name}: must be finite and non-zero")
+    return unit
 
 
 def spherical_basis(up=(0.0, 0.0, 1.0)) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -129,14 +131,16 @@ def spherical_from_pose(c2w, center=(0.0, 0.0, 0.0), up=(0.0, 0.0, 1.0)):
     check_last(c, (3,), "center")
     e1, e2, u = spherical_basis(up)
     p = a[..., :3, 3] - c
-    r = np.linalg.norm(p, axis=-1)
-    if not np.isfinite(r).all() or (r <= 0).any():
+    if not np.isfinite(p).all():
         raise ValueError("spherical_from_pose: camera centre equals center (or is non-finite)")
-    pu = np.sum(p * u, axis=-1)
-    p1, p2 = np.sum(p * e1, axis=-1), np.sum(p * e2, axis=-1)
+    p_unit, r = unit_and_norm(p)  # the direction is exact at any scale, r may overflow to inf
+    if (r <= 0).any():
+        raise ValueError("spherical_from_pose: camera centre equals center (or is non-finite)")
+    pu = np.sum(p_unit * u, axis=-1)
+    p1, p2 = np.sum(p_unit * e1, axis=-1), np.sum(p_unit * e2, axis=-1)
     el = np.degrees(np.arctan2(pu, np.hypot(p1, p2)))
     x = a[..., :3, 0]
-    pole = np.hypot(p1, p2) <= 1e-12 * r
+    pole = np.hypot(p1, p2) <= 1e-12
     az = np.where(pole, np.arctan2(-np.sum(x * e1, axis=-1), np.sum(x * e2, axis=-1)), np.arctan2(p2, p1))
     az = np.degrees(az)
     az = np.where(az <= -180.0, az + 360.0, az).astype(dtype)
@@ -319,12 +323,13 @@ def nearest_view_angles(train_c2w: np.ndarray, test_c2w: np.ndarray,
         c = np.asarray(center, np.float64).reshape(3)
         d_tr, d_te = train_c2w[:, :3, 3] - c, test_c2w[:, :3, 3] - c
     for name, d in (("train_c2w", d_tr), ("test_c2w", d_te)):
-        norm = np.linalg.norm(d, axis=-1, keepdims=True)
-        if not (np.isfinite(norm).all() and (norm > 0).all()):
-            bad = int(np.flatnonzero(~(np.isfinite(norm[:, 0]) & (norm[:, 0] > 0)))[0])
+        unit, norm = unit_and_norm(d)
+        ok = np.isfinite(d).all(axis=-1) & (norm > 0)
+        if not ok.all():
+            bad = int(np.flatnonzero(~ok)[0])
             what = "a camera centre at center" if center is not None else "a zero optical axis"
             raise ValueError(f"{name}[{bad}]: non-finite pose or {what}: its direction is undefined")
-        d /= norm
+        d[:] = unit
     dot = d_te @ d_tr.T                                                        # (n, m)
     cross = np.linalg.norm(np.cross(d_te[:, None, :], d_tr[None, :, :]), axis=-1)  # (n, m)
     return np.degrees(np.arctan2(cross, dot).min(axis=1))                      # precise near 0 and 180

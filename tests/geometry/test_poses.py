@@ -166,3 +166,24 @@ def test_look_at_batched_float32_and_errors():
         look_at([1.0, 2.0, 3.0], [0.0, 0.0, 0.0], [0.0, 0.0, 0.0])
     with pytest.raises(ValueError, match="non-finite"):
         look_at([np.nan, 2.0, 3.0], [0.0, 0.0, 0.0])
+
+
+@pytest.mark.parametrize("scale", [1e-300, 1e-200, 1e-150, 1.0, 1e150, 1e200, 1e300])
+def test_look_at_is_scale_invariant(scale):
+    # A scene in any unit: scaling eye, target and up by s changes the translation only.  Squares of
+    # lengths near 1e+-200 overflow or underflow float64; the old normalisation returned an all-zero
+    # rotation at 1e200 and "eye == target" at 1e-200 (so at c5d7d65).
+    eye, target, up = np.array([0.7, -4.0, 1.3]), np.array([0.1, 0.2, -0.3]), np.array([0.1, 0.2, 1.0])
+    ref = look_at(eye, target, up)
+    with np.errstate(all="raise"):
+        c2w = look_at(eye * scale, target * scale, up * scale)
+    np.testing.assert_allclose(c2w[:3, :3], ref[:3, :3], atol=1e-15)
+    np.testing.assert_array_equal(c2w[:3, 3], eye * scale)
+
+
+def test_look_at_extremes_of_the_float64_range():
+    # Eye and target at +-1e308: their difference overflows float64, the direction does not.
+    np.testing.assert_array_equal(look_at([-1e308, 0, 0], [1e308, 0, 0])[:3, 2], [1, 0, 0])
+    # Far from the origin, a target 4 away: the direction keeps every bit (t - e is exact here).
+    c2w = look_at([1e6, 1e6, 1e6], [1e6, 1e6 + 4, 1e6])
+    np.testing.assert_array_equal(c2w[:3, :3], [[1, 0, 0], [0, 0, 1], [0, -1, 0]])

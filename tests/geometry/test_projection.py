@@ -126,3 +126,35 @@ def test_batched_poses_broadcast():
         project(np.zeros((4, 2)), K_GOLD, np.eye(4))
     with pytest.raises(ValueError, match="intrinsics"):
         project(np.zeros((4, 3)), K_GOLD.K, np.eye(4))
+
+
+@pytest.mark.parametrize("offset", [0.0, 1e5, 5e5])
+@pytest.mark.parametrize("batched", [False, True])
+def test_float32_points_far_from_the_origin(offset, batched):
+    # Georeferenced float32 points: the projection of the float32 values must be as exact as the float32
+    # output allows.  Golden: the pinhole formula in float64 on the same values, K (R^T (X - C)), written
+    # out here with C subtracted first (no cancellation).  K [R|t] applied in float32 was 0.49 px off at
+    # 1e5 and 1.77 px at 5e5 (so at c5d7d65).
+    rng = np.random.default_rng(3)
+    k = Intrinsics(100.0, 100.0, 50.0, 50.0, 100, 100)
+    origin = np.array([offset, -offset, offset / 3])
+    c2w = look_at(origin + [0.0, -4.0, 0.5], origin)
+    pts = (origin + rng.uniform(-1, 1, (5000, 3))).astype(np.float32)
+    cam = (pts.astype(np.float64) - c2w[:3, 3]) @ c2w[:3, :3]
+    uv_ref = cam[:, :2] / cam[:, 2:] * [k.fx, k.fy] + [k.cx, k.cy]
+    pose = c2w[None] if batched else c2w
+    uv, z, ok = project(pts[None] if batched else pts, k, pose)
+    uv, z, ok = (a[0] if batched else a for a in (uv, z, ok))
+    assert uv.dtype == np.float32 and ok.sum() > 4000
+    np.testing.assert_allclose(uv[ok], uv_ref[ok], atol=1e-4)  # float32 rounding of ~100 px: 4e-6
+    np.testing.assert_allclose(z[ok], cam[ok, 2], rtol=1e-6)
+
+
+def test_float32_bounds_are_tested_after_rounding():
+    # u = 4 - 1e-9 is inside [0, 4) in float64 but rounds to 4.0 in float32: it must come back invalid.
+    k = Intrinsics(1.0, 1.0, 2.0, 1.5, 4, 3)
+    pts = np.array([[2 - 1e-9, 0.0, 1.0]])
+    for dtype in DTYPES:
+        uv, _, ok = project(pts.astype(dtype), k, np.eye(4))
+        assert bool(ok[0]) == (dtype == np.float64)
+        assert not ok[0] or uv[0, 0] < 4

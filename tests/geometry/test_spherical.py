@@ -265,3 +265,19 @@ def test_nearest_view_angles_refuses_undefined_directions():
     nan_pose[1, 0, 3] = np.nan
     with pytest.raises(ValueError, match=r"train_c2w\[1\]: non-finite"):
         nearest_view_angles(nan_pose, test)
+
+
+@pytest.mark.parametrize("radius", [1e-300, 1e-200, 1e200, 1e300])
+def test_spherical_round_trip_at_extreme_radii(radius):
+    # Squared radii under- or overflow float64 here; the angles must not notice (by hand: az 30, el 20).
+    c2w = pose_from_spherical(30.0, 20.0, radius)
+    az, el, r = spherical_from_pose(c2w)
+    assert float(az) == pytest.approx(30.0, abs=1e-9) and float(el) == pytest.approx(20.0, abs=1e-9)
+    assert float(r) == pytest.approx(radius, rel=1e-12)
+    np.testing.assert_allclose(c2w[:3, :3], pose_from_spherical(30.0, 20.0, 1.0)[:3, :3], atol=1e-15)
+    from senerf.geometry import nearest_view_angles
+
+    train = pose_from_spherical(np.array([0.0, 90.0]), 0.0, radius)
+    # Nearest is the view at az 0 (cos = cos 20 cos 30, against cos 20 cos 60 for az 90).
+    expected = np.degrees(np.arccos(np.cos(np.radians(20.0)) * np.cos(np.radians(30.0))))
+    np.testing.assert_allclose(nearest_view_angles(train, c2w[None], center=np.zeros(3)), [expected], atol=1e-9)
