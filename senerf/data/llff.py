@@ -143,8 +143,8 @@ def load_llff(root: Path, downscale: float = 1.0, bd_factor: float | None = 0.75
 
     Raises:
         InputError: missing/unreadable ``poses_bounds.npy``, wrong shape, NaN/inf, non-rigid rotation,
-            non-positive focal or size, bad bounds, no suitable image folder, image count mismatch,
-            corrupt image, mixed image sizes.
+            non-positive focal or size, focal lengths that differ between rows, bad bounds, no suitable image
+            folder, image count mismatch, corrupt image, mixed image sizes.
     """
     root = Path(root)
     file = root / "poses_bounds.npy"
@@ -161,6 +161,10 @@ def load_llff(root: Path, downscale: float = 1.0, bd_factor: float | None = 0.75
     if np.any(hwf[:, :2] != hwf[0, :2]):
         i = int(np.argwhere(np.any(hwf[:, :2] != hwf[0, :2], axis=1))[0, 0])
         raise InputError("all rows must share one image size", file=file, field=f"row {i} hwf.H,W")
+    if np.any(hwf[:, 2] != hwf[0, 2]):  # forward-facing scenes are fitted in one NDC frustum, built from one focal
+        i = int(np.flatnonzero(hwf[:, 2] != hwf[0, 2])[0])
+        raise InputError(f"all rows must share one focal length (NDC uses one), got {float(hwf[i, 2])!r} "
+                         f"against row 0's {float(hwf[0, 2])!r}", file=file, field=f"row {i} hwf.f")
     bounds = arr[:, 15:17].copy()
     for i in range(n):
         if not 0 < bounds[i, 0] <= bounds[i, 1]:

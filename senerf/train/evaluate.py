@@ -12,7 +12,7 @@ import torch
 from .checkpoint import atomic_write_bytes
 from .config import ModelConfig
 from .metrics import LPIPS_UNAVAILABLE, psnr, ssim
-from .rays import camera_rays, ray_dist_to_z_depth
+from .rays import camera_rays, per_view_intrinsics, ray_dist_to_z_depth
 
 __all__ = ["render_views", "evaluate", "depth_to_color", "write_png"]
 
@@ -30,7 +30,8 @@ def render_views(field, model: ModelConfig, intrinsics, c2w, occupancy=None, bac
     Args:
         field: the trained :class:`senerf.fields.RadianceField`.
         model: the :class:`ModelConfig` it was trained with (NDC, box, samples).
-        intrinsics: :class:`senerf.geometry.Intrinsics` shared by the cameras.
+        intrinsics: :class:`senerf.geometry.Intrinsics` shared by the cameras, or a sequence of ``n``, one
+            per camera (all of one image size).
         c2w: (n, 4, 4) OpenCV camera-to-world poses.
         occupancy: the field's :class:`senerf.fields.OccupancyGrid` or ``None``.
         background: ``"white"``/``"black"``; ``None`` = ``model.eval_background``.
@@ -53,8 +54,9 @@ def render_views(field, model: ModelConfig, intrinsics, c2w, occupancy=None, bac
         p = next(field.parameters(), None)
         device = p.device if p is not None else torch.device("cpu")
     bg = torch.tensor(_background(background or model.eval_background), device=device)
-    H, W = intrinsics.size
     n = c2w.shape[0]
+    per_view = per_view_intrinsics(intrinsics, n)
+    H, W = per_view[0].size if per_view else getattr(intrinsics, "size", (0, 0))
     out = dict(rgb=np.empty((n, H, W, 3), np.float32), z_depth=np.empty((n, H, W), np.float32),
                acc=np.empty((n, H, W), np.float32))
     views = range(n)
@@ -65,7 +67,7 @@ def render_views(field, model: ModelConfig, intrinsics, c2w, occupancy=None, bac
     was_training = field.training
     field.eval()
     for i in views:
-        rays = camera_rays(intrinsics, c2w[i:i + 1], model, device)
+        rays = camera_rays(per_view[i], c2w[i:i + 1], model, device)
         img = render_image(field, rays["origins"].view(H, W, 3), rays["dirs"].view(H, W, 3),
                            rays["near"].view(H, W), rays["far"].view(H, W), model.n_samples,
                            background=bg, occupancy=occupancy, chunk=chunk, randomized=False, device=device)

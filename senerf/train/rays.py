@@ -16,7 +16,7 @@ from senerf.errors import InputError
 
 from .config import ModelConfig
 
-__all__ = ["RayBatchSource", "ray_aabb_bounds", "camera_rays", "ray_dist_to_z_depth"]
+__all__ = ["RayBatchSource", "ray_aabb_bounds", "camera_rays", "per_view_intrinsics", "ray_dist_to_z_depth"]
 
 
 def ray_aabb_bounds(origins: torch.Tensor, dirs: torch.Tensor, aabb, min_near: float = 1e-3
@@ -57,7 +57,9 @@ def camera_rays(intrinsics, c2w: np.ndarray, model: ModelConfig, device: str | t
     ``near = 0`` and ``far = |d_ndc|`` per ray.
 
     Args:
-        intrinsics: one :class:`senerf.geometry.Intrinsics` (all images share it).
+        intrinsics: one :class:`senerf.geometry.Intrinsics` shared by the cameras, or a sequence of ``n``
+            (one per camera, all of one image size).  NDC needs them all equal (the NDC warp is built from
+            one focal length; :func:`senerf.data.load_llff` refuses scenes whose focals differ).
         c2w: (n, 4, 4) camera-to-world poses (OpenCV).
         model: gives ``ndc``/``ndc_near``, ``aabb`` and constant ``near``/``far``.
         device: where the tensors go.
@@ -68,11 +70,19 @@ def camera_rays(intrinsics, c2w: np.ndarray, model: ModelConfig, device: str | t
         ``world_oz (R,)``, ``world_dz (R,)`` (used in NDC, where they are the world's; outside NDC the origin's
         z is the model frame's), ``ndc_len (R,)`` (1 outside NDC).
     """
-    from senerf.geometry import pixel_rays
+    from senerf.geometry import Intrinsics, pixel_rays
 
     c2w = np.asarray(c2w, dtype=np.float64)
     if c2w.ndim != 3 or c2w.shape[1:] != (4, 4):
         raise ValueError(f"c2w must be (n, 4, 4), got {c2w.shape}")
+    if not isinstance(intrinsics, Intrinsics):
+        per_view = per_view_intrinsics(intrinsics, c2w.shape[0])
+        if any(k != per_view[0] for k in per_view):
+            if model.ndc:
+                raise ValueError("camera_rays: NDC rays need one shared Intrinsics (the NDC warp uses one focal)")
+            parts = [camera_rays(k, c2w[i:i + 1], model, device) for i, k in enumerate(per_view)]
+            return {key: torch.cat([p[key] for p in parts]) for key in parts[0]}
+        intrinsics = per_view[0]
     o, d, zpd = pixel_rays(intrinsics, c2w)
     if not model.ndc:  # world -> model frame, in float64 (see ModelConfig.frame_origin)
         o = o - np.asarray(model.frame_origin, dtype=np.float64)
@@ -102,6 +112,18 @@ def camera_rays(intrinsics, c2w: np.ndarray, model: ModelConfig, device: str | t
         near, far = ray_aabb_bounds(o, d, model.field_aabb, min_near=min(1e-3, 1e-3 * size))
     out.update(origins=o, dirs=d, near=near, far=far)
     return out
+
+
+def per_view_intrinsics(intrinsics, n: int) -> tuple:
+    """``intrinsics`` (one ``Intrinsics`` or a sequence of ``n``) as a tuple of ``n``, all of one image size."""
+    from senerf.geometry import Intrinsics
+
+    seq = (intrinsics,) * n if isinstance(intrinsics, Intrinsics) else tuple(intrinsics)
+    if len(seq) != n or not all(isinstance(k, Intrinsics) for k in seq):
+        raise ValueError(f"intrinsics: expected one Intrinsics or a sequence of {n}, got {len(seq)} items")
+    if any(k.size != seq[0].size for k in seq):
+        raise ValueError(f"intrinsics: the cameras' image sizes differ ({sorted({k.size for k in seq})})")
+    return seq
 
 
 def ray_dist_to_z_depth(ray_dist: torch.Tensor, rays: dict[str, torch.Tensor], model: ModelConfig) -> torch.Tensor:
@@ -161,7 +183,7 @@ class RayBatchSource:
             raise InputError("no training views", field="views")
         if idx.min() < 0 or idx.max() >= scene.n_images:
             raise InputError(f"view index out of range [0, {scene.n_images})", field="views")
-        rays = camera_rays(scene.intrinsics, scene.c2w[idx], model, device)
+        rays = camera_rays([scene.intrinsics_all[i] for i in idx], scene.c2w[idx], model, device)
         rgb = torch.as_tensor(scene.rgb[idx].reshape(-1, 3), dtype=torch.float32, device=device)
         alpha = None
         if scene.alpha is not None and scene.background is None:

@@ -1,6 +1,6 @@
 """Tests of senerf/data/load.py: format detection, downscaling, background, and the bad-input table.
 
-The table ``BAD_INPUT`` holds 37 bad-input cases; each builds a scene folder in tmp_path, breaks one thing
+The table ``BAD_INPUT`` holds 38 bad-input cases; each builds a scene folder in tmp_path, breaks one thing
 and checks that ``load_scene`` raises ``InputError`` whose message names the file and the field (one line).
 Accepted-but-unusual inputs (grey / 16-bit / RGB-only images, missing ngp images) are tested in
 test_io.py and test_blender.py.
@@ -250,6 +250,13 @@ def case_llff_zero_focal(tmp, w):
     rows[2, 14] = 0.0  # entry (2, 4) of the 3x5 block is f
     root = w.llff(tmp / "llff", rows=rows)
     return (lambda: load_scene(root, downscale=2), "poses_bounds.npy", "row 2 hwf.f", "positive")
+
+
+def case_llff_focals_differ(tmp, w):
+    rows = w.llff_rows()
+    rows[6, 14] *= 1.01  # NDC is built from one focal: a second one would silently bend view 6's rays
+    root = w.llff(tmp / "llff", rows=rows)
+    return (lambda: load_scene(root, downscale=2), "poses_bounds.npy", "row 6 hwf.f", "share one focal")
 
 
 def case_llff_bad_bounds(tmp, w):

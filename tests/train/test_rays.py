@@ -105,3 +105,52 @@ def test_a_world_frame_checkpoint_loads_into_the_model_frame():
     a, b, c = (_render(f, camera_rays(K, _c2w(offset), model), model) for f in (writer, reader, plain))
     torch.testing.assert_close(b, a, rtol=0, atol=0)
     assert (c - a).abs().max() > 0.01  # the world box in the model frame: the points fall outside it
+
+
+def _two_camera_scene():
+    from senerf.data import Scene
+
+    k0, k1 = Intrinsics(40.0, 40.0, 16.0, 12.0, 32, 24), Intrinsics(55.0, 50.0, 15.0, 13.0, 32, 24)
+    c2w = np.concatenate([_c2w((0, 0, 0)), look_at([-2.5, -2.0, 1.0], [0.0, 0.0, 0.0])[None]])
+    rgb = np.zeros((2, 24, 32, 3), np.float32)
+    return Scene(name="two", root=".", rgb=rgb, alpha=None, intrinsics=k0, intrinsics_all=(k0, k1), c2w=c2w,
+                 image_paths=("a.png", "b.png"))
+
+
+def test_training_rays_use_each_views_own_intrinsics():
+    # Per-frame intrinsics (instant-ngp/nerfstudio frames may carry their own fl_x): every training ray of
+    # view i must pass through its pixel centre under view i's K.  Golden: senerf.geometry.project, a
+    # separately tested function.  Before, every view's rays were cast with image 0's K (so at a79fcfc).
+    from senerf.geometry import project
+    from senerf.train import RayBatchSource
+
+    scene = _two_camera_scene()
+    model = _model((0, 0, 0))
+    rays = RayBatchSource.from_scene(scene, [1, 0], model)
+    h, w = 24, 32
+    jj, ii = np.meshgrid(np.arange(h) + 0.5, np.arange(w) + 0.5, indexing="ij")
+    centres = np.stack([ii, jj], axis=-1).reshape(-1, 2)
+    pts = (rays.origins + 2.0 * rays.dirs).double().numpy().reshape(2, h * w, 3)
+    for slot, view in enumerate([1, 0]):
+        uv, _, ok = project(pts[slot], scene.intrinsics_all[view], scene.c2w[view])
+        assert ok.all()
+        np.testing.assert_allclose(uv, centres, atol=1e-4)
+
+
+def test_render_views_and_camera_rays_take_one_intrinsics_per_camera():
+    from senerf.train import render_views
+
+    scene = _two_camera_scene()
+    model = _model((0, 0, 0))
+    field = build_field(model, seed=0)
+    both = render_views(field, model, scene.intrinsics_all, scene.c2w)
+    for i in range(2):
+        one = render_views(field, model, scene.intrinsics_all[i], scene.c2w[i])
+        for key in ("rgb", "z_depth", "acc"):
+            np.testing.assert_array_equal(both[key][i], one[key][0])
+    assert not np.array_equal(both["rgb"][1], render_views(field, model, scene.intrinsics, scene.c2w[1])["rgb"][0])
+    ndc = dataclasses.replace(model, ndc=True, aabb=((-1.5, -1.5, -1.0), (1.5, 1.5, 1.0)), ndc_near=1.0)
+    with pytest.raises(ValueError, match="NDC rays need one shared Intrinsics"):
+        camera_rays(scene.intrinsics_all, scene.c2w, ndc)
+    with pytest.raises(ValueError, match="sequence of 2"):
+        camera_rays(scene.intrinsics_all[:1], scene.c2w, model)
