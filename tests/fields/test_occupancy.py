@@ -27,3 +27,52 @@ def test_update_marks_ball_cells_and_decays():
     dil = OccupancyGrid([[0.0] * 3, [2.0] * 3], 10, threshold=1.0, dilate=1)
     dil.update(BallField(center=(0.5, 0.5, 0.5), radius=0.05, value=5.0))   # exactly one cell
     assert round(dil.occupied_fraction() * 1000) == 27
+
+
+def test_axis_order_with_an_off_diagonal_ball():
+    # Catches: x and z (or any two axes) swapped in is_occupied's flat index, or in cell_centers' layout.
+    # Box [0, 2]^3, 10 cells of 0.2 per side, centres at 0.1 + 0.2 k.  A ball of radius 0.15 at
+    # (0.3, 1.5, 0.9) is the centre of cell (i, j, k) = (1, 7, 4) and reaches no other cell centre (the
+    # nearest are 0.2 away), so exactly that cell, flat index (1 * 10 + 7) * 10 + 4 = 174, is occupied.
+    g = OccupancyGrid([[0.0] * 3, [2.0] * 3], 10, threshold=1.0, dilate=0)
+    g.update(BallField(center=(0.3, 1.5, 0.9), radius=0.15, value=5.0))
+    assert torch.nonzero(g.mask).flatten().tolist() == [174]
+    assert torch.allclose(g.cell_centers()[174], torch.tensor([0.3, 1.5, 0.9]), atol=1e-6)
+    inside_cell = [[0.3, 1.5, 0.9], [0.21, 1.41, 0.81], [0.39, 1.59, 0.99]]  # centre and near corners
+    others = [[0.9, 1.5, 0.3], [0.3, 0.9, 1.5], [1.5, 0.3, 0.9],  # the same coordinates in other orders
+              [0.5, 1.5, 0.9], [0.1, 1.5, 0.9], [0.3, 1.7, 0.9], [0.3, 1.3, 0.9], [0.3, 1.5, 1.1],
+              [0.3, 1.5, 0.7], [0.19, 1.5, 0.9], [0.3, 1.61, 0.9], [0.3, 1.5, 0.79]]  # neighbour cells
+    occ = g.is_occupied(torch.tensor(inside_cell + others))
+    assert occ.tolist() == [True] * 3 + [False] * len(others)
+
+
+class _RecordingField:
+    """Zero density everywhere; keeps the points it was asked about."""
+
+    def __init__(self):
+        self.points = []
+
+    def density(self, xyz):
+        self.points.append(xyz.clone())
+        return torch.zeros(xyz.shape[0])
+
+
+def test_jittered_update_samples_stay_inside_their_cells():
+    # Catches: a jitter wider than one cell (e.g. 4x), or one scaled by the wrong axis' cell size, in update
+    # with a generator.  update evaluates one point per cell in cell_centers' order, so each recorded point
+    # must lie within half a cell of its cell's centre on every axis; on a box with cells of 0.2 x 0.1 x 0.4
+    # (cube [0, 2] x [0, 1] x [0, 4], 10 per side) the 1000 uniform offsets must also span most of that
+    # half-width (a missing jitter fails too).
+    g = OccupancyGrid([[0.0, 0.0, 0.0], [2.0, 1.0, 4.0]], 10, dilate=0)
+    field = _RecordingField()
+    g.update(field, generator=torch.Generator().manual_seed(0), chunk=300)
+    pts = torch.cat(field.points)
+    assert pts.shape == (1000, 3)
+    half = torch.tensor([0.1, 0.05, 0.2])
+    off = pts - g.cell_centers()
+    assert (off.abs() <= half * (1 + 1e-5)).all()
+    assert (off.min(dim=0).values < -0.9 * half).all() and (off.max(dim=0).values > 0.9 * half).all()
+    # without a generator: exactly the centres
+    field = _RecordingField()
+    g.update(field)
+    assert torch.equal(torch.cat(field.points), g.cell_centers())

@@ -103,3 +103,20 @@ def test_frozen():
 def test_from_fov_rejects_bad_fov(fov):
     with pytest.raises(ValueError, match="fov"):
         Intrinsics.from_fov(fov, 10, 10)
+
+
+def test_resized_non_square_uses_each_axis_ratio():
+    # Catches: resized() applying the height ratio to x (or the width ratio to y).
+    # 800 x 600 -> 400 x 200: sx = 400/800 = 0.5, sy = 200/600 = 1/3.  Pixel edges map to pixel edges, so
+    # every coordinate scales by its axis ratio with no half-pixel shift: fx = 1000 * 0.5 = 500,
+    # cx = 410 * 0.5 = 205, fy = 900 / 3 = 300, cy = 290 / 3 = 96.666...
+    k = Intrinsics(1000.0, 900.0, 410.0, 290.0, 800, 600)
+    r = k.resized(400, 200)
+    assert (r.width, r.height) == (400, 200)
+    assert r.fx == pytest.approx(500.0, rel=1e-15) and r.cx == pytest.approx(205.0, rel=1e-15)
+    assert r.fy == pytest.approx(300.0, rel=1e-15) and r.cy == pytest.approx(290.0 / 3.0, rel=1e-15)
+    # Same thing through the pixel-centre convention: the centre (0.5, 0.5) of small pixel (0, 0) covers
+    # full-size [0, 2) x [0, 3), whose centre is (1.0, 1.5): both must see the same ray.
+    ray_small = np.linalg.solve(r.K, [0.5, 0.5, 1.0])
+    ray_full = np.linalg.solve(k.K, [1.0, 1.5, 1.0])
+    np.testing.assert_allclose(ray_small, ray_full, rtol=1e-14)

@@ -281,3 +281,55 @@ def test_spherical_round_trip_at_extreme_radii(radius):
     # Nearest is the view at az 0 (cos = cos 20 cos 30, against cos 20 cos 60 for az 90).
     expected = np.degrees(np.arccos(np.cos(np.radians(20.0)) * np.cos(np.radians(30.0))))
     np.testing.assert_allclose(nearest_view_angles(train, c2w[None], center=np.zeros(3)), [expected], atol=1e-9)
+
+
+def test_nearest_view_angles_takes_the_nearest_and_the_optical_axis_path():
+    # Catches: the minimum over training views replaced by the maximum (a test view at 45 degrees between
+    # views at 0 and 90 cannot tell them apart), and the center=None path reading anything but camera z.
+    from senerf.geometry import nearest_view_angles
+
+    # Directions from the origin: training views at azimuth 0 and 90 (elevation 0), test view at azimuth 10:
+    # nearest 10 degrees (the farthest would be 80).
+    train = pose_from_spherical(np.array([0.0, 90.0]), 0.0, 4.0)
+    test = pose_from_spherical(np.array([10.0, -30.0]), 0.0, np.array([2.0, 7.0]))
+    np.testing.assert_allclose(nearest_view_angles(train, test), [10.0, 30.0], atol=1e-9)
+    # Optical axes (center=None), rotations built with cv2.Rodrigues.  Train: identity (z = +z) at (5, 0, 0)
+    # and a 90-degree turn about +y (z = +x) at (0, 5, 0).  Test: 30 degrees about +x (z = (0, -sin 30,
+    # cos 30)) at (0, 0, 7): its axis is 30 degrees from +z and 90 from +x, so the answer is 30, while the
+    # directions from the origin (+x, +y against +z) are 90 degrees from both.
+    def pose(axis, angle, position):
+        c2w = np.eye(4)
+        c2w[:3, :3] = _rodrigues(axis, angle)
+        c2w[:3, 3] = position
+        return c2w
+
+    train_ff = np.stack([pose([0, 1, 0], 0.0, [5.0, 0, 0]), pose([0, 1, 0], 90.0, [0, 5.0, 0])])
+    test_ff = pose([1, 0, 0], 30.0, [0, 0, 7.0])[None]
+    np.testing.assert_allclose(train_ff[1, :3, 2], [1.0, 0.0, 0.0], atol=1e-15)
+    np.testing.assert_allclose(test_ff[0, :3, 2], [0.0, -0.5, np.sqrt(3) / 2], atol=1e-15)
+    np.testing.assert_allclose(nearest_view_angles(train_ff, test_ff, center=None), [30.0], atol=1e-9)
+    np.testing.assert_allclose(nearest_view_angles(train_ff, test_ff), [90.0], atol=1e-9)
+    np.testing.assert_allclose(nearest_view_angles(train_ff[:, :3], test_ff[:, :3], center=None), [30.0],
+                               atol=1e-9)
+
+
+@pytest.mark.parametrize("dtype", DTYPES)
+def test_sample_pseudo_views_offsets_go_both_ways(dtype):
+    # Catches: azimuth offsets drawn from [0, off] instead of [-off, off], and the elevation window starting
+    # at the source elevation (upward only) instead of el - off.
+    # Three views about a centre with +z up, elevations far from the poles (the window is never clipped).
+    # Their x axes are horizontal and their axes meet at the centre, so the sampler's default up is +z and
+    # its default centre is `center`; the offsets are measured here about those, with 60 draws from 10 degrees.
+    center = np.array([0.1, -0.2, 0.3])
+    inputs = pose_from_spherical(np.array([0.0, 130.0, -110.0]), np.array([20.0, 35.0, -15.0]), 4.0,
+                                 center=center).astype(dtype)
+    np.testing.assert_allclose(default_up(inputs), [0.0, 0.0, 1.0], atol=1e-5)
+    np.testing.assert_allclose(closest_point_to_axes(inputs), center, atol=1e-4)
+    c2w, src = sample_pseudo_views(inputs, 10.0, 60, np.random.default_rng(1))
+    az, el, _ = spherical_from_pose(c2w.astype(np.float64), center, (0, 0, 1))
+    az0, el0, _ = spherical_from_pose(inputs.astype(np.float64), center, (0, 0, 1))
+    d_az, d_el = wrap(az - az0[src]), el - el0[src]
+    tol = 1e-3 if dtype == np.float32 else 1e-8
+    assert (np.abs(d_az) <= 10 + tol).all() and (np.abs(d_el) <= 10 + tol).all()
+    assert d_az.min() < -5 and d_az.max() > 5
+    assert d_el.min() < -5 and d_el.max() > 5

@@ -271,3 +271,95 @@ def test_negative_or_non_finite_tolerances_are_refused(name):
     for bad in (-0.01, float("nan"), float("inf")):
         with pytest.raises(ValueError, match=rf"{name}: must be finite and >= 0"):
             reproject(depth, K, pose, K, pose, z_depth_dst=depth, **{name: bad})
+
+
+# A frontal source 4 units above the plane z = 0 and a destination 4 units from the origin at 60 degrees from
+# the normal, both looking at the origin: every source pixel sees the plane and ~98 % of them warp into dst.
+K500 = Intrinsics(500.0, 500.0, 64.0, 48.0, 128, 96)
+FB_SRC = look_at([0.0, 0.0, 4.0], [0.0, 0.0, 0.0], up=[0.0, 1.0, 0.0])
+FB_DST = look_at([0.0, -4.0 * np.sin(np.radians(60.0)), 4.0 * np.cos(np.radians(60.0))], [0.0, 0.0, 0.0])
+
+
+@pytest.mark.parametrize("dtype", DTYPES)
+@pytest.mark.parametrize("shift", [-2.0, 2.0])
+def test_forward_backward_rejects_a_sideways_shifted_destination_depth(dtype, shift):
+    # Catches: the forward-backward pixel-distance check deleted (or loosened) in _fb_ok.
+    # The destination depth map is the true plane depth shifted `shift` rows (rendered with cy + shift, so no
+    # wrap-around): plausible depths in the wrong place.  Lifting dst pixel uv with that depth puts the point
+    # on the right dst ray at the depth of the ray through (u, v - shift); computed here by ray casting, its
+    # back-projection lands 2.6 - 3.5 px from the source pixel while its source depth is off by < 0.4 %, so
+    # only the pixel check (fb_px_tol = 1) can reject it.
+    n, d = np.array([0.0, 0.0, 1.0]), 0.0
+    z_src = plane_depth(K500, FB_SRC, n, d)
+    assert np.isfinite(z_src).all()
+    uv_ref = apply_h(homography(K500, FB_SRC, K500, FB_DST, n, d), K500)
+    expect = in_image(uv_ref, K500)
+    assert expect.mean() > 0.9
+    z_shifted = plane_depth(Intrinsics(500.0, 500.0, 64.0, 48.0 + shift, 128, 96), FB_DST, n, d)
+    # Independent forward-backward: lift uv_ref with the shifted depth, project back into the source.
+    u, v = uv_ref[..., 0], uv_ref[..., 1]
+    o_d = FB_DST[:3, 3]
+    dirs = np.stack([(u - 64.0) / 500.0, (v - 48.0 - shift) / 500.0, np.ones_like(u)], -1) @ FB_DST[:3, :3].T
+    with np.errstate(divide="ignore", invalid="ignore"):
+        z_lift = (d - o_d @ n) / (dirs @ n)
+    cam_d = np.stack([(u - 64.0) / 500.0 * z_lift, (v - 48.0) / 500.0 * z_lift, z_lift], -1)
+    world = cam_d @ FB_DST[:3, :3].T + o_d
+    w2c = np.linalg.inv(FB_SRC)
+    cam_s = world @ w2c[:3, :3].T + w2c[:3, 3]
+    j, i = np.mgrid[0:96, 0:128]
+    px_err = np.hypot(500.0 * cam_s[..., 0] / cam_s[..., 2] + 64.0 - (i + 0.5),
+                      500.0 * cam_s[..., 1] / cam_s[..., 2] + 48.0 - (j + 0.5))
+    depth_err = np.abs(cam_s[..., 2] - z_src) / z_src
+    assert px_err[expect].min() > 2.0 and depth_err[expect].max() < 0.005  # the premise of the test
+    zs, zd = z_src.astype(dtype), z_shifted.astype(dtype)
+    _, ok_z = reproject(zs, K500, FB_SRC, K500, FB_DST, z_depth_dst=zd)
+    np.testing.assert_array_equal(ok_z, expect)  # the occlusion test alone keeps them all
+    _, ok_depth_only = reproject(zs, K500, FB_SRC, K500, FB_DST, z_depth_dst=zd, forward_backward=True,
+                                 fb_px_tol=1e9)
+    np.testing.assert_array_equal(ok_depth_only, expect)  # the 1 % depth check passes them all
+    _, ok_fb = reproject(zs, K500, FB_SRC, K500, FB_DST, z_depth_dst=zd, forward_backward=True)
+    assert not ok_fb.any()
+
+
+@pytest.mark.parametrize("dtype", DTYPES)
+def test_forward_backward_tight_pixel_tolerance_keeps_exact_warps(dtype):
+    # Catches: the pixel centre of the start pixel in _fb_ok taken as i (or j) instead of i + 0.5 (a 0.5 px
+    # error that fb_px_tol = 1 hides).  With the exact destination plane depth every round trip returns to the
+    # pixel centre up to bilinear-interpolation and rounding error (<< 0.1 px), so fb_px_tol = 0.1 must keep
+    # exactly the in-image warps (the plane homography's).
+    n, d = np.array([0.0, 0.0, 1.0]), 0.0
+    z_src = plane_depth(K500, FB_SRC, n, d).astype(dtype)
+    z_dst = plane_depth(K500, FB_DST, n, d).astype(dtype)
+    expect = in_image(apply_h(homography(K500, FB_SRC, K500, FB_DST, n, d), K500), K500)
+    _, ok = reproject(z_src, K500, FB_SRC, K500, FB_DST, z_depth_dst=z_dst, forward_backward=True, fb_px_tol=0.1)
+    assert expect.mean() > 0.9
+    np.testing.assert_array_equal(ok, expect)
+
+
+@pytest.mark.parametrize("dtype", DTYPES)
+def test_warps_in_the_outer_half_pixel_of_a_steep_destination_stay_valid(dtype):
+    # Catches: the slope_tol (D_hi - D_lo) term dropped from the occlusion bound.
+    # The destination looks at the plane z = 0 from 1 unit above at 82 degrees from the normal: along its top
+    # row (ray ~87.4 degrees) the depth grows ~4.4 % per pixel towards the top edge.  A frontal source 10
+    # units above the spot that row sees makes many warps land in v in [0, 0.5), above the top pixel-centre
+    # row, where the footprint is shifted inwards and the true depth exceeds the footprint max by up to ~2 %,
+    # more than rel_tol = 1 % covers; slope_tol = 0.5 must cover it (every geometrically correct warp valid).
+    k = K500
+    dst = look_at([0.0, 0.0, 1.0], [0.0, np.tan(np.radians(82.0)), 0.0])
+    z_dst = plane_depth(k, dst, [0, 0, 1], 0.0)
+    assert np.isfinite(z_dst).all()  # the horizon is above the image
+    assert 0.03 < z_dst[0, 64] / z_dst[1, 64] - 1 < 0.06  # steep along v at the top edge
+    o, dirs = camera_rays(k, dst)
+    spot = o[0, 64] + dirs[0, 64] * z_dst[0, 64]  # where the top-centre pixel's ray meets the plane
+    src = look_at(spot + [0.0, 0.0, 10.0], spot, up=[0.0, 1.0, 0.0])
+    z_src = plane_depth(k, src, [0, 0, 1], 0.0).astype(dtype)
+    assert np.isfinite(z_src).all()
+    uv, ok_plain = reproject(z_src, k, src, k, dst)
+    outer = ok_plain & (uv[..., 1] < 0.5)
+    assert outer.sum() > 1000
+    _, ok = reproject(z_src, k, src, k, dst, z_depth_dst=z_dst.astype(dtype))
+    np.testing.assert_array_equal(ok, ok_plain)
+    # The case needs the term: without it, warps in the outer half pixel (and only there) are rejected.
+    _, ok0 = reproject(z_src, k, src, k, dst, z_depth_dst=z_dst.astype(dtype), slope_tol=0.0)
+    lost = ok_plain & ~ok0
+    assert lost.sum() > 100 and not (lost & ~outer).any()
