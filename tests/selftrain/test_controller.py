@@ -6,6 +6,7 @@ import ast
 import dataclasses
 import hashlib
 import json
+import math
 from pathlib import Path
 
 import numpy as np
@@ -324,3 +325,107 @@ def test_runs_made_before_the_new_settings_keep_their_resume_identity():
     for changed in (dict(student_grid="student"), dict(batch_empty=256)):
         ident = controller_mod._selftrain_identity(config_to_dict(SelfTrainConfig(iterations=1, **changed)))
         assert ident != _OLD_SELFTRAIN and ident.items() >= {k: v for k, v in changed.items()}.items()
+
+
+# ---------------------------------------------------------------------------------------------------------
+# The labelling of estimate_reliability on canned similarities (renders handed in, view_similarity stubbed)
+
+
+def _canned_labels(monkeypatch, sims, acc, cfg, alpha):
+    """``estimate_reliability`` on ``P`` pseudo views whose per-pixel similarity is ``sims (P, H, W)`` and
+    teacher opacity ``acc (P, H, W)`` (foreground: ``acc >= cfg.opacity_threshold``); no rendering, no
+    features: the renders are handed in and ``view_similarity`` returns the canned values view by view."""
+    from types import SimpleNamespace
+
+    from senerf.selftrain.reliability import ViewSimilarity
+
+    p, h, w = sims.shape
+    acc = np.asarray(acc, np.float32)
+    calls = iter(range(p))
+
+    def canned_similarity(feats, z, opacity, *args, opacity_threshold, **kwargs):
+        i = next(calls)
+        assert np.array_equal(opacity, acc[i])
+        return ViewSimilarity(sims[i].astype(np.float32), np.zeros((1, h, w), np.float32),
+                              np.zeros((1, h, w), bool), np.asarray(opacity) >= opacity_threshold)
+
+    monkeypatch.setattr(controller_mod, "view_similarity", canned_similarity)
+    scene = SimpleNamespace(intrinsics=senerf.geometry.Intrinsics.from_fov(60.0, w, h), c2w=np.eye(4)[None])
+    known = dict(acc=np.ones((1, h, w), np.float32), z_depth=np.ones((1, h, w), np.float32))
+    pseudo = dict(acc=acc, z_depth=np.ones((p, h, w), np.float32),
+                  rgb=np.zeros((p, h, w, 3), np.float32))
+    extractor = lambda images: np.zeros((images.shape[0], h, w, 2), np.float32)  # noqa: E731
+    return controller_mod.estimate_reliability(None, None, None, scene, [0], np.stack([np.eye(4)] * p), extractor,
+                                               cfg, alpha, known_features=np.zeros((1, h, w, 2), np.float32),
+                                               renders=(known, pseudo))
+
+
+def _quantile_by_sorting(values: np.ndarray, q: float) -> float:
+    """The linear-interpolation quantile written out: position q (n - 1) in the sorted sample."""
+    v = np.sort(values.reshape(-1))
+    pos = q * (v.size - 1)
+    lo = int(math.floor(pos))
+    hi = min(lo + 1, v.size - 1)
+    return float(v[lo] + (pos - lo) * (v[hi] - v[lo]))
+
+
+def _has_neighbour(ok: np.ndarray, y: int, x: int) -> bool:
+    """Whether any pixel of the 3 x 3 window around (y, x), centre excluded, inside the image satisfies ``ok``."""
+    h, w = ok.shape
+    return any(ok[y + dy, x + dx] for dy in (-1, 0, 1) for dx in (-1, 0, 1)
+               if (dy, dx) != (0, 0) and 0 <= y + dy < h and 0 <= x + dx < w)
+
+
+def _two_views_with_a_bright_background():
+    """(sims, acc) of 2 pseudo views of 6 x 7: the left three columns background (opacity 0.3) with
+    similarity 0.99, the rest foreground (opacity 0.9) with similarities spread over [0, 0.9]."""
+    rng = np.random.default_rng(11)
+    sims = rng.uniform(0.0, 0.9, size=(2, 6, 7))
+    acc = np.full((2, 6, 7), 0.9)
+    acc[:, :, :3] = 0.3
+    sims[:, :, :3] = 0.99
+    return sims, acc
+
+
+def test_adaptive_labels_threshold_on_foreground_and_prior_on_foreground_only(monkeypatch):
+    """Catches the adaptive threshold taken over all pixels (background included) instead of the foreground
+    ones, and the prior given to background pixels next to reliable ones (``fg &`` dropped)."""
+    sims, acc = _two_views_with_a_bright_background()
+    fg = acc >= 0.5
+    cfg = SelfTrainConfig(features="daisy", threshold="adaptive", empty_opacity=0.0)
+    labels = _canned_labels(monkeypatch, sims, acc, cfg, alpha=0.25)
+    tau = _quantile_by_sorting(sims[fg], 0.75)
+    assert labels.tau == pytest.approx(tau, rel=1e-6)
+    assert _quantile_by_sorting(sims, 0.75) > tau + 0.05       # the bright background would move it
+    np.testing.assert_array_equal(labels.foreground, fg)
+    reliable = fg & (sims > tau)
+    np.testing.assert_array_equal(labels.weights, reliable.astype(np.float32))
+    expected_prior = np.zeros_like(fg)
+    for v, y, x in np.ndindex(*fg.shape):
+        expected_prior[v, y, x] = fg[v, y, x] and not reliable[v, y, x] and _has_neighbour(reliable[v], y, x)
+    np.testing.assert_array_equal(labels.prior, expected_prior.astype(np.float32))
+    # some background pixels touch reliable ones: they must get no prior all the same
+    assert any(_has_neighbour(reliable[v], y, x) for v, y, x in zip(*np.nonzero(~fg)))
+
+
+def test_unified_labels_soft_weights_and_prior_one_minus_weight(monkeypatch):
+    """Catches the 'unified' prior weight written as ``weights`` instead of ``1 - weights``, and a prior on
+    background pixels; weights are ``sigmoid(beta (s - 0.7))`` on the foreground."""
+    rng = np.random.default_rng(5)
+    sims = rng.uniform(0.4, 1.0, size=(2, 5, 6))
+    acc = np.full((2, 5, 6), 0.9)
+    acc[0, :, 0] = acc[1, 4, :] = 0.3            # background: a column of view 0, a row of view 1
+    sims[acc < 0.5] = 0.1                         # dim background: its foreground neighbours are more similar
+    fg = acc >= 0.5
+    cfg = SelfTrainConfig(features="daisy", threshold="unified", beta=16.0, empty_opacity=0.0)
+    labels = _canned_labels(monkeypatch, sims, acc, cfg, alpha=0.25)
+    assert labels.tau is None
+    weights = np.where(fg, 1.0 / (1.0 + np.exp(-16.0 * (sims - 0.7))), 0.0)
+    np.testing.assert_allclose(labels.weights, weights, rtol=1e-6, atol=1e-7)
+    expected = np.zeros(fg.shape)
+    for v, y, x in np.ndindex(*fg.shape):
+        more_similar_fg = fg[v] & (sims[v] > sims[v, y, x])
+        if fg[v, y, x] and _has_neighbour(more_similar_fg, y, x):
+            expected[v, y, x] = 1.0 - weights[v, y, x]
+    assert np.count_nonzero(expected) > 20
+    np.testing.assert_allclose(labels.prior, expected, rtol=1e-6, atol=1e-7)

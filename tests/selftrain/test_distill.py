@@ -162,7 +162,7 @@ def test_prior_queries_reliable_neighbours_at_shared_fractions():
     assert len(teacher.calls) == 2  # reliable rays, then the prior's neighbours
     pts = teacher.calls[1].reshape(-1, s, 3)
     # every queried neighbour lies in the reliable half of the image (x < w // 2 -> x/10 < 0.3)
-    assert torch.all(pts[:, 0, 0] < 0.35)
+    assert torch.all(pts[:, 0, 0] < 0.25)  # column 3 (x = 0.3) is the unreliable centre column
     # neighbours are grouped per centre; within one centre's group, the per-bin fraction is shared
     frac = (pts[..., 2] / (2.0 / s)) % 1.0
     groups = {}
@@ -291,3 +291,177 @@ def test_batch_empty_draws_surface_and_empty_rays_on_top_of_each_other():
     assert torch.equal(a.calls[0], b.calls[0])
     with pytest.raises(ValueError):
         DistillConfig(batch_empty=-1)
+
+
+# ---------------------------------------------------------------------------------------------------------
+# Kernel at another size / std, neighbour indexing across views, the prior target against the dense
+# reference, and the losses by hand (soft weights, both geometry targets).
+
+
+def test_gaussian_kernel_5x5_std_1p5_by_hand():
+    """Catches a wrong variance in the exponent (``2 std`` instead of ``2 std^2``: equal at std = 1 only)."""
+    g = gaussian_kernel(5, 1.5)
+    # 2 std^2 = 4.5; squared radii of the 24 offsets: 1 (x4), 2 (x4), 4 (x4), 5 (x8), 8 (x4)
+    unnorm = {1: math.exp(-1 / 4.5), 2: math.exp(-2 / 4.5), 4: math.exp(-4 / 4.5), 5: math.exp(-5 / 4.5),
+              8: math.exp(-8 / 4.5)}
+    total = 4 * unnorm[1] + 4 * unnorm[2] + 4 * unnorm[4] + 8 * unnorm[5] + 4 * unnorm[8]
+    offs = neighbour_offsets(5)
+    assert g.shape == (24,)
+    for (dy, dx), w in zip(offs, g):
+        assert w == pytest.approx(unnorm[int(dy * dy + dx * dx)] / total, rel=1e-12)
+    # e.g. the edge neighbour against the corner (+-2, +-2): exp((8 - 1) / 4.5) = exp(1.5556) = 4.7377...
+    assert g[offs.tolist().index([0, 1])] / g[offs.tolist().index([2, 2])] == pytest.approx(4.73772, rel=1e-5)
+
+
+def test_unified_prior_weights_ignore_background_neighbours():
+    """Catches using every neighbour in the unified weights instead of foreground ones only (``fg_n``)."""
+    s = np.array([[0.95, 0.6, 0.1],
+                  [0.1, 0.4, 0.1],
+                  [0.1, 0.1, 0.99]])
+    fg = np.ones_like(s, bool)
+    fg[0, 0] = False   # background, more similar than the centre (0.95 > 0.4)
+    fg[2, 2] = False   # background, the most similar pixel of all
+    w, has = unified_prior_weights(s, fg)
+    offs = [tuple(o) for o in neighbour_offsets(3)]
+    # centre (1, 1): the only more similar *foreground* neighbour is (0, 1): all the weight there
+    expected = np.zeros(8)
+    expected[offs.index((-1, 0))] = 1.0
+    np.testing.assert_allclose(w[1, 1], expected, atol=1e-7)
+    # (1, 2), s = 0.1: foreground (0, 1) 0.6 and (1, 1) 0.4 are more similar, background (2, 2) 0.99 does not count
+    g_edge, g_diag = math.exp(-0.5), math.exp(-1.0)
+    raw = np.zeros(8)
+    raw[offs.index((-1, -1))] = 0.5 * g_diag   # (0, 1): 0.6 - 0.1
+    raw[offs.index((0, -1))] = 0.3 * g_edge    # (1, 1): 0.4 - 0.1
+    np.testing.assert_allclose(w[1, 2], raw / raw.sum(), rtol=1e-6)
+    # (0, 1), s = 0.6: its only more similar neighbour is the background (0, 0): no prior neighbour at all
+    assert not has[0, 1] and np.all(w[0, 1] == 0)
+
+
+def test_neighbours_flat_indices_in_the_second_view_and_along_x():
+    """Catches a lost view offset (``base = 0``) and an ignored column offset (``nx = x``) in
+    ``PseudoRays.neighbours``: flat index = view * H * W + row * W + column, window clamped at the edges."""
+    p, h, w = 2, 4, 5
+    rel = np.zeros((p, h, w), bool)
+    rel[0, :, :2] = True      # view 0: two left columns reliable
+    rel[1, 2:, :] = True      # view 1: two bottom rows reliable
+    pseudo = make_pseudo(p=p, h=h, w=w, reliable=rel)
+    # offsets in the order (-1,-1) (-1,0) (-1,1) (0,-1) (0,1) (1,-1) (1,0) (1,1)
+    table = {
+        7: [1, 2, 3, 6, 8, 11, 12, 13],           # view 0, (1, 2)
+        27: [21, 22, 23, 26, 28, 31, 32, 33],     # view 1, (1, 2): 20 + the row above
+        24: [23, 24, 24, 23, 24, 28, 29, 29],     # view 1, (0, 4): top-right corner, clamped
+        39: [33, 34, 34, 38, 39, 38, 39, 39],     # view 1, (3, 4): bottom-right corner, clamped
+        20: [20, 20, 21, 20, 21, 25, 25, 26],     # view 1, (0, 0): top-left corner, clamped
+    }
+    idx = torch.tensor(list(table))
+    flat, wts = pseudo.neighbours(idx)
+    assert flat.tolist() == list(table.values())
+    torch.testing.assert_close(wts, pseudo.neighbour[idx])
+
+
+class BinField(torch.nn.Module):
+    """Teacher density constant inside each of ``s`` bins of [0, 2] along z, varying with x and y:
+    ``sigma = (1 + 5 x + 3 y) (1 + k)``, bin ``k = floor(z s / 2)``; so its per-bin values do not depend on
+    where in the bin a sample falls and a dense per-pixel reference can be written down."""
+
+    def __init__(self, s: int):
+        super().__init__()
+        self.s = s
+
+    def density(self, xyz):
+        k = torch.floor(xyz[:, 2] * self.s / 2.0)
+        return (1.0 + 5.0 * xyz[:, 0] + 3.0 * xyz[:, 1]) * (1.0 + k)
+
+    def forward(self, xyz, dirs):
+        return self.density(xyz), torch.full_like(xyz, 0.5)
+
+
+def test_prior_target_is_the_dense_gaussian_prior():
+    """Catches dropping the Gaussian neighbour weights in ``_prior_target`` (a plain sum of the neighbours'
+    values) and mixing views: the target of every prior ray equals ``gaussian_prior`` on its own view."""
+    s, p, h, w = 8, 2, 5, 6
+    rel = np.zeros((p, h, w), bool)
+    rel[0, :, :2] = True                      # view 0: a vertical band
+    rel[0, 4, 2:4] = True
+    rel[1, 0, :] = True                       # view 1: the top row and a few scattered pixels
+    rel[1, 3, 1] = rel[1, 2, 4] = True
+    pseudo = make_pseudo(p=p, h=h, w=w, reliable=rel)
+    pseudo.origins.view(p, h, w, 3)[1, ..., 0] += 1.0   # view 1's rays sit at x + 1: other teacher values
+    cfg = DistillConfig(geometry_target="log_density")
+    loss = DistillationLoss(BinField(s), pseudo, cfg, n_samples=s, background="black")
+    idx = torch.nonzero(pseudo.prior > 0).squeeze(1)
+    assert idx.numel() > 10
+    got = loss._prior_target(idx, torch.Generator().manual_seed(0)).numpy()
+    # dense reference: the teacher's log1p(density) of every pixel's ray in every bin
+    ys, xs = np.meshgrid(np.arange(h), np.arange(w), indexing="ij")
+    k = np.arange(s)
+    expected = np.zeros((p, h, w, s))
+    for v in range(p):
+        x, y = xs / 10.0 + v, ys / 10.0
+        teacher = np.log1p((1 + 5 * x + 3 * y)[..., None] * (1 + k))
+        target, has = gaussian_prior(rel[v], teacher)
+        expected[v] = target
+        assert np.all(has[~rel[v]] == (pseudo.prior.view(p, h, w)[v].numpy() > 0)[~rel[v]])
+    # the neighbours of one centre have unequal weights (edge and diagonal) and unequal values
+    wts = pseudo.neighbour[idx]
+    assert bool(((wts > 0).sum(1) >= 2).any()) and len({round(float(v), 6) for v in wts[wts > 0]}) >= 3
+    np.testing.assert_allclose(got, expected.reshape(-1, s)[idx.numpy()], rtol=1e-5)
+
+
+class ConstField(torch.nn.Module):
+    """Constant density and colour everywhere."""
+
+    def __init__(self, sigma: float, rgb):
+        super().__init__()
+        self.sigma = sigma
+        self.rgb = torch.tensor(rgb, dtype=torch.float32)
+
+    def density(self, xyz):
+        return torch.full((xyz.shape[0],), self.sigma)
+
+    def forward(self, xyz, dirs):
+        return self.density(xyz), self.rgb.expand(xyz.shape[0], 3)
+
+
+def soft_weights(pseudo: PseudoRays, m: float, prior: float) -> PseudoRays:
+    """The same rays with reliable weight ``m`` on the reliable rays and prior weight ``prior`` on the prior rays
+    (as the 'unified' weighting makes: not 0 / 1)."""
+    return PseudoRays(pseudo.origins, pseudo.dirs, pseudo.near, pseudo.far, pseudo.shape, pseudo.reliable * m,
+                      pseudo.prior * prior, pseudo.neighbour)
+
+
+def test_losses_by_hand_with_soft_weights_weights_target():
+    """Catches ignoring the soft reliable weight ``m`` in the colour or geometry loss, ignoring the prior
+    weight ``1 - m`` in the prior loss, and a mean instead of the sum over bins of the 'weights' distance."""
+    s = 4
+    pseudo = soft_weights(make_pseudo(), m=0.25, prior=0.75)
+    # teacher: opaque at its first sample (sigma delta >= 1e4 * 0.001: weights exactly [1, 0, 0, 0]),
+    # colour (0.2, 0.4, 0.6); student: empty (weights 0), so it renders the black background
+    teacher = ConstField(1e7, [0.2, 0.4, 0.6])
+    student = ConstField(0.0, [0.9, 0.9, 0.9])
+    cfg = DistillConfig(batch_reliable=16, batch_prior=8, geometry_target="weights")
+    _, logs = DistillationLoss(teacher, pseudo, cfg, n_samples=s, background="black")(
+        student, 0, torch.Generator().manual_seed(0))
+    assert logs["n_reliable"] == 16 and logs["n_prior"] == 8
+    # L_c = mean_r m ||C_T - C_S||^2 = 0.25 (0.04 + 0.16 + 0.36) = 0.14
+    assert logs["distill_color"] == pytest.approx(0.14, rel=1e-6)
+    # L_g = mean_r m sum_k (w_T - w_S)^2 = 0.25 (1 + 0 + 0 + 0) = 0.25  (a mean over the 4 bins: 0.0625)
+    assert logs["distill_geometry"] == pytest.approx(0.25, rel=1e-6)
+    # the prior target is the normalised average of neighbours' [1, 0, 0, 0]: [1, 0, 0, 0];
+    # L_p = mean_r (1 - m) sum_k (target - w_S)^2 = 0.75
+    assert logs["distill_prior"] == pytest.approx(0.75, rel=1e-6)
+
+
+def test_losses_by_hand_log_density_target():
+    """Catches the 'log_density' target computed on raw densities (``sigma`` for ``log1p(sigma)``), in the
+    reliable geometry loss or in the prior target, and a sum instead of the mean over bins there."""
+    s = 4
+    pseudo = soft_weights(make_pseudo(), m=0.25, prior=0.75)
+    teacher, student = ConstField(3.0, [0.5, 0.5, 0.5]), ConstField(1.0, [0.5, 0.5, 0.5])
+    cfg = DistillConfig(batch_reliable=16, batch_prior=8, geometry_target="log_density")
+    _, logs = DistillationLoss(teacher, pseudo, cfg, n_samples=s, background="black")(
+        student, 0, torch.Generator().manual_seed(0))
+    # every bin: (log1p(3) - log1p(1))^2 = (ln 4 - ln 2)^2 = (ln 2)^2 = 0.480453; the mean over bins is the same
+    d = math.log(2.0) ** 2
+    assert logs["distill_geometry"] == pytest.approx(0.25 * d, rel=1e-5)   # raw densities: 0.25 * 4 = 1
+    assert logs["distill_prior"] == pytest.approx(0.75 * d, rel=1e-5)

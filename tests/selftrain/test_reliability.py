@@ -199,3 +199,45 @@ def test_shape_checks():
     with pytest.raises(ValueError):
         view_similarity(feats, z, np.ones(K.size), K, camera(0.0), feats[None, ..., :5], z[None], K,
                         camera(0.0)[None])
+
+
+def test_per_view_intrinsics_match_separate_single_view_calls():
+    """Catches a list of known-view intrinsics not being used view by view (e.g. the pseudo view's
+    intrinsics used for every known view): each view's result must equal a call with that view alone."""
+    k_narrow = geometry.Intrinsics.from_fov(45.0, 40, 32)       # same image size, another focal length
+    assert k_narrow.fx != K.fx
+    cams = [camera(-0.9), camera(1.0, 0.2)]
+    intrs = [K, k_narrow]
+    kf, kz = [], []
+    for c, intr in zip(cams, intrs):
+        z = np.full(intr.size, PLANE_Z - c[2, 3])
+        kf.append(feature_field(geometry.unproject(geometry.pixel_centers(intr), z, intr, c)))
+        kz.append(z)
+    kf, kz, kc = np.stack(kf), np.stack(kz), np.stack(cams)
+    pf, pz = plane_view(camera(0.05))
+    opacity = np.ones(K.size)
+    both = view_similarity(pf, pz, opacity, K, camera(0.05), kf, kz, intrs, kc)
+    for j in range(2):
+        alone = view_similarity(pf, pz, opacity, K, camera(0.05), kf[j:j + 1], kz[j:j + 1], intrs[j], kc[j:j + 1])
+        np.testing.assert_array_equal(both.valid[j], alone.valid[0])
+        np.testing.assert_allclose(both.per_view[j], alone.per_view[0], atol=1e-6)
+        # and the right intrinsics make the narrow view consistent too (the warp lands on the same surface)
+        assert both.valid[j].mean() > 0.3 and np.median(both.per_view[j][both.valid[j]]) > 0.98
+    with pytest.raises(ValueError):
+        view_similarity(pf, pz, opacity, K, camera(0.05), kf, kz, [K], kc)   # one intrinsics for two views
+
+
+def test_foreground_includes_opacity_exactly_at_the_threshold():
+    """Catches ``opacity > threshold`` for the documented ``opacity >= threshold``."""
+    feats, z = plane_view(camera(0.0))
+    opacity = np.full(K.size, 0.9)
+    opacity[0, 0] = 0.5                       # exactly the threshold: foreground
+    opacity[0, 1] = np.nextafter(0.5, 0.0)    # just below: background
+    opacity[0, 2] = 0.25                      # exactly another threshold, below this one
+    res = view_similarity(feats, z, opacity, K, camera(0.0), feats[None], z[None], K, camera(0.0)[None],
+                          opacity_threshold=0.5)
+    assert res.foreground[0, 0] and not res.foreground[0, 1] and not res.foreground[0, 2]
+    assert res.foreground[1:].all()
+    res = view_similarity(feats, z, opacity, K, camera(0.0), feats[None], z[None], K, camera(0.0)[None],
+                          opacity_threshold=0.25)
+    assert res.foreground[0, 2] and res.foreground[0, 1]
