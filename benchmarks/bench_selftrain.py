@@ -82,8 +82,9 @@ def bench_masks(args) -> dict:
     ev = evaluate(teacher, scene, test_idx, None, model, occupancy=occ, progress=False)
     eval_idx, angles = _nearest_held_out(scene, train_idx, fewshot_test_views(scene), args.n_eval)
     t_r = time.perf_counter()
-    renders = (render_views(teacher, model, scene.intrinsics, scene.c2w[train_idx], occupancy=occ),
-               render_views(teacher, model, scene.intrinsics, scene.c2w[eval_idx], occupancy=occ))
+    per_view = scene.intrinsics_all
+    renders = (render_views(teacher, model, [per_view[i] for i in train_idx], scene.c2w[train_idx], occupancy=occ),
+               render_views(teacher, model, [per_view[i] for i in eval_idx], scene.c2w[eval_idx], occupancy=occ))
     t_render = time.perf_counter() - t_r
     print(f"teacher: {tcfg.steps} steps in {t_train:.0f} s, test PSNR {ev['psnr']:.2f} dB on {len(test_idx)} views; "
           f"{len(eval_idx)} held-out poses {angles.min():.1f} - {angles.max():.1f} deg from the nearest input, "

@@ -173,6 +173,7 @@ class PseudoLabels:
         empty: (P, H, W) bool: reliable pixels that are empty space (teacher opacity below
             ``SelfTrainConfig.empty_opacity``; all False when it is 0).  A subset of ``weights > 0``; the one
             place this test is made, by whichever producer (features or oracle) made the labels.
+        intrinsics: the ``Intrinsics`` the views were rendered with: one shared, or a tuple of P.
     """
 
     c2w: np.ndarray
@@ -186,6 +187,7 @@ class PseudoLabels:
     prior: np.ndarray
     neighbour: np.ndarray
     empty: np.ndarray
+    intrinsics: object
 
     def __post_init__(self) -> None:
         if self.empty.shape != self.weights.shape or self.empty.dtype != bool:
@@ -213,7 +215,8 @@ def known_images(scene, idx, model) -> np.ndarray:
 
 def estimate_reliability(teacher, occupancy, model, scene, train_idx, pseudo_c2w: np.ndarray, extractor,
                          cfg: SelfTrainConfig, alpha: float, known_features: np.ndarray | None = None,
-                         device=None, renders: tuple[dict, dict] | None = None) -> PseudoLabels:
+                         device=None, renders: tuple[dict, dict] | None = None,
+                         pseudo_intrinsics=None) -> PseudoLabels:
     """Render ``pseudo_c2w (P, 4, 4)`` with the teacher and estimate every pixel's reliability.
 
     Args:
@@ -227,28 +230,34 @@ def estimate_reliability(teacher, occupancy, model, scene, train_idx, pseudo_c2w
             computed with :func:`known_view_features` when None.
         renders: ``(known, pseudo)`` teacher renders (``senerf.train.render_views`` dicts of the known and the
             pseudo cameras) to reuse; rendered when None.
+        pseudo_intrinsics: the pseudo cameras' ``Intrinsics`` (one, or a sequence of P); default image 0's.
+            The known views always use their own (``scene.intrinsics_all``).
     Returns:
         :class:`PseudoLabels`.
     """
     train_idx = np.asarray(train_idx, dtype=np.int64).reshape(-1)
-    intr = scene.intrinsics
+    intr = scene.intrinsics if pseudo_intrinsics is None else pseudo_intrinsics
+    known_intr = [scene.intrinsics_all[i] for i in train_idx]
+    if all(k == known_intr[0] for k in known_intr):
+        known_intr = known_intr[0]  # one batched warp per pseudo view
     known_c2w = np.asarray(scene.c2w[train_idx], dtype=np.float64)
     if known_features is None:
         known_features = known_view_features(extractor, known_images(scene, train_idx, model))
     if renders is None:
-        renders = (render_views(teacher, model, intr, known_c2w, occupancy=occupancy, device=device),
+        renders = (render_views(teacher, model, known_intr, known_c2w, occupancy=occupancy, device=device),
                    render_views(teacher, model, intr, pseudo_c2w, occupancy=occupancy, device=device))
     known, pseudo = renders
     if known["acc"].shape[0] != train_idx.size or pseudo["acc"].shape[0] != pseudo_c2w.shape[0]:
         raise ValueError("renders do not match the known / pseudo cameras")
     known_z = np.where(known["acc"] >= cfg.opacity_threshold, known["z_depth"], np.inf)
     n = pseudo_c2w.shape[0]
+    pseudo_k = (intr,) * n if isinstance(intr, geometry.Intrinsics) else tuple(intr)
     sims = np.empty(pseudo["acc"].shape, np.float32)
     fg = np.empty(pseudo["acc"].shape, bool)
     for i in range(n):
         feats = extractor(np.clip(pseudo["rgb"][i:i + 1], 0.0, 1.0))[0]
-        res = view_similarity(feats, pseudo["z_depth"][i], pseudo["acc"][i], intr, pseudo_c2w[i],
-                              known_features, known_z, intr, known_c2w,
+        res = view_similarity(feats, pseudo["z_depth"][i], pseudo["acc"][i], pseudo_k[i], pseudo_c2w[i],
+                              known_features, known_z, known_intr, known_c2w,
                               opacity_threshold=cfg.opacity_threshold, rel_tol=cfg.occlusion_rel_tol)
         sims[i], fg[i] = res.similarity, res.foreground
     tau = resolve_threshold(cfg.threshold, sims[fg], alpha=alpha, tau=cfg.fixed_tau)
@@ -263,7 +272,7 @@ def estimate_reliability(teacher, occupancy, model, scene, train_idx, pseudo_c2w
         prior = (fg & has & (weights <= 0)).astype(np.float32)
     return PseudoLabels(c2w=pseudo_c2w, rgb=pseudo["rgb"], z_depth=pseudo["z_depth"], acc=pseudo["acc"],
                         similarity=sims, foreground=fg, tau=tau, weights=weights, prior=prior,
-                        neighbour=neighbour, empty=empty)
+                        neighbour=neighbour, empty=empty, intrinsics=intr)
 
 
 def _empty_pixels(acc: np.ndarray, empty_opacity: float) -> np.ndarray:
@@ -283,7 +292,8 @@ def reliability_mask_quality(teacher, occupancy, model, scene, train_idx, eval_i
 
     Args:
         eval_idx: (P,) indices of held-out images of ``scene`` (not in ``train_idx``).
-        the rest: as :func:`estimate_reliability` (``renders``: of the known and the ``eval_idx`` cameras).
+        the rest: as :func:`estimate_reliability` (``renders``: of the known and the ``eval_idx`` cameras,
+            each with its own ``scene.intrinsics_all``).
     Returns:
         (dict ``precision, recall, fpr, tp, fp, fn, tn, gt_reliable_rate`` (share of foreground pixels
         that are right by the ground truth: the precision of a mask that keeps everything), the labels).
@@ -293,7 +303,8 @@ def reliability_mask_quality(teacher, occupancy, model, scene, train_idx, eval_i
         raise ValueError("eval_idx must not contain known views")
     labels = estimate_reliability(teacher, occupancy, model, scene, train_idx,
                                   np.asarray(scene.c2w[eval_idx], dtype=np.float64), extractor, cfg, alpha,
-                                  known_features=known_features, device=device, renders=renders)
+                                  known_features=known_features, device=device, renders=renders,
+                                  pseudo_intrinsics=tuple(scene.intrinsics_all[i] for i in eval_idx))
     truth = gt_reliable_mask(np.clip(labels.rgb, 0.0, 1.0), known_images(scene, eval_idx, model), max_error)
     predicted = labels.weights > 0.5
     quality = mask_quality(predicted, truth, labels.foreground)
@@ -339,7 +350,8 @@ def oracle_reliability(teacher, occupancy, model, scene, pseudo_idx, cfg: SelfTr
     (every pixel, background included); the prior goes to the other pixels with a reliable neighbour."""
     pseudo_idx = np.asarray(pseudo_idx, dtype=np.int64).reshape(-1)
     c2w = np.asarray(scene.c2w[pseudo_idx], dtype=np.float64)
-    pseudo = render_views(teacher, model, scene.intrinsics, c2w, occupancy=occupancy, device=device)
+    intr = tuple(scene.intrinsics_all[i] for i in pseudo_idx)
+    pseudo = render_views(teacher, model, intr, c2w, occupancy=occupancy, device=device)
     truth = gt_reliable_mask(np.clip(pseudo["rgb"], 0.0, 1.0), known_images(scene, pseudo_idx, model),
                              cfg.oracle_max_error)
     weights = truth.astype(np.float32)
@@ -349,11 +361,11 @@ def oracle_reliability(teacher, occupancy, model, scene, pseudo_idx, cfg: SelfTr
     empty = truth & _empty_pixels(pseudo["acc"], cfg.empty_opacity)
     return PseudoLabels(c2w=c2w, rgb=pseudo["rgb"], z_depth=pseudo["z_depth"], acc=pseudo["acc"],
                         similarity=weights.copy(), foreground=everything, tau=None, weights=weights,
-                        prior=prior, neighbour=neighbour, empty=empty)
+                        prior=prior, neighbour=neighbour, empty=empty, intrinsics=intr)
 
 
-def _pseudo_rays(labels: PseudoLabels, intrinsics, model, device, q: int) -> PseudoRays:
-    rays = camera_rays(intrinsics, labels.c2w, model, device)
+def _pseudo_rays(labels: PseudoLabels, model, device, q: int) -> PseudoRays:
+    rays = camera_rays(labels.intrinsics, labels.c2w, model, device)
     t = lambda a: torch.as_tensor(np.ascontiguousarray(a), dtype=torch.float32, device=device)  # noqa: E731
     n = labels.weights.size
     empty = torch.as_tensor(np.ascontiguousarray(labels.empty.reshape(-1)), device=device)
@@ -552,7 +564,7 @@ def run_selftraining(scene, train_idx, test_idx, model, train_cfg, cfg: SelfTrai
             echo(f"selftrain: iteration {k}: {pseudo_c2w.shape[0]} pseudo views within "
                  f"{cfg.pseudo_range(k):g} deg, tau {tau_txt}, reliable {100 * reliable_fraction:.1f} % of "
                  f"foreground, prior on {100 * float(labels.prior[labels.foreground].mean()):.1f} %")
-            pseudo = _pseudo_rays(labels, scene.intrinsics, model, device, cfg.kernel_size)
+            pseudo = _pseudo_rays(labels, model, device, cfg.kernel_size)
             extra = DistillationLoss(teacher, pseudo, cfg, model.n_samples,
                                      model.train_background, teacher_occupancy=occupancy)
         result = train_field(field, rays, tcfg, extra_loss=extra, checkpoint=ckpt_dir / f"iter_{k}_train.pt",

@@ -12,12 +12,12 @@ from .config import (PRESETS, ModelConfig, TrainConfig, build_field, camera_aabb
 from .evaluate import depth_to_color, evaluate, render_views, write_png
 from .loop import TrainResult, background_color, load_state_keeping_box, lr_factor, make_occupancy, train_field
 from .metrics import LPIPS_UNAVAILABLE, mse, psnr, ssim
-from .rays import RayBatchSource, camera_rays, ray_aabb_bounds, ray_dist_to_z_depth
+from .rays import RayBatchSource, camera_rays, per_view_intrinsics, ray_aabb_bounds, ray_dist_to_z_depth
 
 __all__ = [
     "TrainConfig", "ModelConfig", "PRESETS", "preset_train_config", "choose_model", "build_field",
     "camera_aabb", "config_to_dict", "settings_differences", "differences_text",
-    "RayBatchSource", "camera_rays", "ray_aabb_bounds", "ray_dist_to_z_depth",
+    "RayBatchSource", "camera_rays", "per_view_intrinsics", "ray_aabb_bounds", "ray_dist_to_z_depth",
     "train_field", "TrainResult", "lr_factor", "make_occupancy", "background_color", "load_state_keeping_box",
     "evaluate", "render_views", "depth_to_color", "write_png",
     "psnr", "ssim", "mse", "LPIPS_UNAVAILABLE",

@@ -289,9 +289,9 @@ def test_empty_space_pixels_become_reliable(tiny_scene, tiny_teacher):
     # the labels mark exactly those pixels empty, and the rays handed to the distillation carry that mask
     np.testing.assert_array_equal(out[0.6].empty, low)
     assert not out[0.0].empty.any()
-    rays = controller_mod._pseudo_rays(out[0.6], scene.intrinsics, model, "cpu", 3)
+    rays = controller_mod._pseudo_rays(out[0.6], model, "cpu", 3)
     np.testing.assert_array_equal(rays.empty.numpy(), low.reshape(-1))
-    assert not controller_mod._pseudo_rays(out[0.0], scene.intrinsics, model, "cpu", 3).empty.any()
+    assert not controller_mod._pseudo_rays(out[0.0], model, "cpu", 3).empty.any()
     with pytest.raises(ValueError, match="must be reliable"):      # empty pixels are a subset of reliable ones
         dataclasses.replace(out[0.0], empty=~(out[0.0].weights > 0))
     with pytest.raises(InputError, match="empty_opacity"):
@@ -350,7 +350,8 @@ def _canned_labels(monkeypatch, sims, acc, cfg, alpha):
                               np.zeros((1, h, w), bool), np.asarray(opacity) >= opacity_threshold)
 
     monkeypatch.setattr(controller_mod, "view_similarity", canned_similarity)
-    scene = SimpleNamespace(intrinsics=senerf.geometry.Intrinsics.from_fov(60.0, w, h), c2w=np.eye(4)[None])
+    k = senerf.geometry.Intrinsics.from_fov(60.0, w, h)
+    scene = SimpleNamespace(intrinsics=k, intrinsics_all=(k,), c2w=np.eye(4)[None])
     known = dict(acc=np.ones((1, h, w), np.float32), z_depth=np.ones((1, h, w), np.float32))
     pseudo = dict(acc=acc, z_depth=np.ones((p, h, w), np.float32),
                   rgb=np.zeros((p, h, w, 3), np.float32))
@@ -429,3 +430,42 @@ def test_unified_labels_soft_weights_and_prior_one_minus_weight(monkeypatch):
             expected[v, y, x] = 1.0 - weights[v, y, x]
     assert np.count_nonzero(expected) > 20
     np.testing.assert_allclose(labels.prior, expected, rtol=1e-6, atol=1e-7)
+
+
+def test_known_views_keep_their_own_intrinsics(monkeypatch):
+    """Per-frame intrinsics: the known views are rendered and warped into with their own K (a batched warp
+    with one shared K only when they are all equal); pseudo views use image 0's.  Before, image 0's K was
+    used for every known view (so at 6561c21)."""
+    from types import SimpleNamespace
+
+    from senerf.selftrain.reliability import ViewSimilarity
+
+    h, w = 4, 5
+    k0 = senerf.geometry.Intrinsics.from_fov(60.0, w, h)
+    k1 = senerf.geometry.Intrinsics.from_fov(45.0, w, h)
+    seen = {}
+
+    def fake_render(teacher, model, intrinsics, c2w, **kwargs):
+        seen.setdefault("render", []).append(intrinsics)
+        n = np.asarray(c2w).shape[0]
+        return dict(rgb=np.zeros((n, h, w, 3), np.float32), z_depth=np.ones((n, h, w), np.float32),
+                    acc=np.ones((n, h, w), np.float32))
+
+    def fake_similarity(feats, z, opacity, pseudo_k, pseudo_c2w, known_f, known_z, known_k, known_c2w, **kw):
+        seen["pseudo_k"], seen["known_k"] = pseudo_k, known_k
+        return ViewSimilarity(np.zeros((h, w), np.float32), np.zeros((2, h, w), np.float32),
+                              np.zeros((2, h, w), bool), np.ones((h, w), bool))
+
+    monkeypatch.setattr(controller_mod, "render_views", fake_render)
+    monkeypatch.setattr(controller_mod, "view_similarity", fake_similarity)
+    extractor = lambda images: np.zeros((images.shape[0], h, w, 2), np.float32)  # noqa: E731
+    cfg = SelfTrainConfig(features="daisy")
+    for known, expect in (((k0, k1, k0), [k1, k0]), ((k0, k0, k0), k0)):
+        seen.clear()
+        scene = SimpleNamespace(intrinsics=k0, intrinsics_all=known, c2w=np.stack([np.eye(4)] * 3))
+        labels = controller_mod.estimate_reliability(None, None, None, scene, [1, 2], np.stack([np.eye(4)] * 2),
+                                                     extractor, cfg, 0.15,
+                                                     known_features=np.zeros((2, h, w, 2), np.float32))
+        assert seen["render"] == [expect, k0]          # known views, then the pseudo views
+        assert seen["known_k"] == expect and seen["pseudo_k"] == k0
+        assert labels.intrinsics == k0
