@@ -20,6 +20,7 @@ def output_folder(path, flag: str) -> Path:
     path = Path(path)
     if path.exists() and not path.is_dir():
         raise InputError(f"exists and is not a folder; choose another {flag}", file=path)
+    _check_creatable(path, flag, name=path)
     return path
 
 
@@ -28,7 +29,25 @@ def output_file(path, flag: str) -> Path:
     path = Path(path)
     if path.is_dir():
         raise InputError(f"is a folder; {flag} takes a file name", file=path)
+    _check_creatable(path.parent, flag, name=path)
+    if path.exists() and not os.access(path, os.W_OK):
+        raise InputError(f"is not writable; choose another {flag}", file=path)
     return path
+
+
+def _check_creatable(folder: Path, flag: str, name: Path) -> None:
+    """:class:`InputError` (naming ``name``) unless ``folder`` exists and is writable, or can be created: its
+    nearest existing ancestor must be a writable folder.  A file in the way, or a folder without write
+    permission, is refused now rather than after the work; places only the kernel refuses (``/sys``, as
+    root) are caught where the first file is written."""
+    existing = Path(os.path.abspath(folder))
+    while not existing.exists() and existing != existing.parent:
+        existing = existing.parent
+    if not existing.is_dir():
+        raise InputError(f"cannot be created: {existing} is not a folder; choose another {flag}", file=name)
+    if not os.access(existing, os.W_OK | os.X_OK):
+        where = "is not writable" if existing == Path(os.path.abspath(folder)) else f"cannot be created in {existing}"
+        raise InputError(f"{where} (no write permission); choose another {flag}", file=name)
 
 
 def _fsync_dir(folder: Path) -> None:

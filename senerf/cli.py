@@ -67,14 +67,18 @@ def _argument_type(convert):
     return checked
 
 
-def _positive_int(flag: str, allow_zero: bool = False):
+def _positive_int(flag: str, allow_zero: bool = False, minimum: int | None = None, maximum: int | None = None):
+    """An integer >= 1 (>= 0 with ``allow_zero``; >= ``minimum`` when given), at most ``maximum`` when given."""
+    low = minimum if minimum is not None else (0 if allow_zero else 1)
+
     def convert(text: str) -> int:
         try:
             value = int(text)
         except ValueError:
             raise InputError(f"expected an integer, got {text!r}", field=flag) from None
-        if value < (0 if allow_zero else 1):
-            raise InputError(f"must be {'>= 0' if allow_zero else '>= 1'}, got {value}", field=flag)
+        if value < low or (maximum is not None and value > maximum):
+            bound = f">= {low}" + ("" if maximum is None else f" and <= {maximum}")
+            raise InputError(f"must be {bound}, got {value}", field=flag)
         return value
     return _argument_type(convert)
 
@@ -116,10 +120,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help="self-training iterations after the baseline (0 = baseline only; default: the "
                         "preset's: 3 for balanced, 1 for fast)")
     t.add_argument("--device", default="cpu", help="cpu or cuda")
-    t.add_argument("--seed", type=_positive_int("--seed", allow_zero=True), default=0)
+    t.add_argument("--seed", type=_positive_int("--seed", allow_zero=True, maximum=2**63 - 1), default=0)
     m = p.add_argument_group("model overrides (default: chosen from the scene and printed)")
     m.add_argument("--field", choices=("kplanes", "nerf"))
-    m.add_argument("--resolution", type=_positive_int("--resolution"), help="base plane resolution")
+    m.add_argument("--resolution", type=_positive_int("--resolution", minimum=2), help="base plane resolution")
     m.add_argument("--samples", type=_positive_int("--samples"), help="samples per ray")
     m.add_argument("--hidden", type=_positive_int("--hidden"), help="width of the K-Planes MLPs (default 32)")
     m.add_argument("--aabb", type=_float("--aabb", positive=True), help="half size of a cube AABB around the origin")
@@ -211,6 +215,25 @@ def _model_overrides(args) -> dict:
     return out
 
 
+def _check_model_fits(model) -> None:
+    """:class:`InputError` when the field's feature planes (with their gradients and Adam's two moments:
+    4 copies) would not fit in half of this machine's memory: refused before anything is written."""
+    if model.field != "kplanes":
+        return
+    from senerf.fields.interp import plane_layout
+
+    _, rows = plane_layout(tuple(int(model.resolution * m) for m in model.multires))
+    need = 4 * rows * model.n_features * 4  # float32 planes, gradients, Adam's m and v
+    try:
+        have = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    except (ValueError, OSError, AttributeError):  # pragma: no cover - platforms without sysconf
+        return
+    if need > have // 2:
+        raise InputError(f"{model.resolution} needs {need / 2**30:.1f} GiB for the feature planes and their "
+                         f"optimiser state, more than half of this machine's {have / 2**30:.0f} GiB",
+                         field="--resolution")
+
+
 def _check_device(device: str) -> str:
     import torch
 
@@ -223,8 +246,25 @@ def _check_device(device: str) -> str:
     raise InputError(f"expected cpu or cuda, got {device!r}", field="--device")
 
 
+#: Keys every run.json that senerf-fit writes has: how a folder is recognised as one of its runs.
+_RUN_KEYS = frozenset({"scene_dir", "format", "protocol", "train", "model"})
+#: What senerf-fit writes into its folder (and ``--overwrite`` removes from a folder of another run).
+_OUTPUT_NAMES = ("checkpoints", "metrics.json", _RUN_FILE)
+
+
+def _own_outputs(out: Path) -> list[Path]:
+    """The entries of ``out`` with the names senerf-fit writes (``iter_*`` folders included)."""
+    found = [out / name for name in _OUTPUT_NAMES if (out / name).exists()]
+    return found + sorted(p for p in out.glob("iter_*") if p.is_dir())
+
+
 def _prepare_out(out: Path, identity: dict, overwrite: bool) -> None:
-    """Refuse a folder holding another run (unless ``overwrite``); record this run's identity."""
+    """Refuse a folder holding another run (unless ``overwrite``); record this run's identity.
+
+    ``--overwrite`` only ever removes what senerf-fit wrote: a folder whose ``run.json`` is not one of ours
+    (unreadable, or without our keys) is refused even then, and so is a folder of other files that holds
+    any name senerf-fit would write (``metrics.json``, ``checkpoints``, ``iter_*``).
+    """
     from senerf.atomic import output_folder
     from senerf.train import atomic_write_text, differences_text, settings_differences
 
@@ -233,26 +273,33 @@ def _prepare_out(out: Path, identity: dict, overwrite: bool) -> None:
     if run_file.exists():
         try:
             old = json.loads(run_file.read_text())
-        except (OSError, json.JSONDecodeError):
+        except (OSError, UnicodeDecodeError, json.JSONDecodeError):
             old = None
+        if not (isinstance(old, dict) and _RUN_KEYS <= old.keys()):
+            raise InputError(f"holds a {_RUN_FILE} that senerf-fit did not write; choose another --out "
+                             f"(--overwrite never deletes files it did not make)", file=out)
         if old != identity:
             if not overwrite:
-                diffs = settings_differences(old, identity) if isinstance(old, dict) else []
-                what = (differences_text(diffs) if diffs
-                        else "settings differ" if isinstance(old, dict) else f"its {_RUN_FILE} is unreadable")
+                diffs = settings_differences(old, identity)
+                what = differences_text(diffs) if diffs else "settings differ"
                 raise InputError(f"holds a different run ({what}); use --overwrite or another --out", file=out)
-            for name in ("checkpoints", "metrics.json", _RUN_FILE):
-                target = out / name
+            for target in _own_outputs(out):
                 if target.is_dir():
                     shutil.rmtree(target)
-                elif target.exists():
+                else:
                     target.unlink()
-            for child in out.glob("iter_*"):
-                if child.is_dir():
-                    shutil.rmtree(child)
-    elif out.exists() and any(out.iterdir()) and not overwrite:
-        raise InputError("exists and is not a senerf-fit output folder; use --overwrite or another --out", file=out)
-    atomic_write_text(run_file, json.dumps(identity, indent=1, sort_keys=True))
+    elif out.exists() and any(out.iterdir()):
+        clash = _own_outputs(out)
+        if clash:
+            raise InputError(f"is not a senerf-fit output folder but holds {clash[0].name}, which a run would "
+                             f"overwrite; choose another --out", file=out)
+        if not overwrite:
+            raise InputError("exists and is not a senerf-fit output folder; use --overwrite or another --out",
+                             file=out)
+    try:
+        atomic_write_text(run_file, json.dumps(identity, indent=1, sort_keys=True))
+    except OSError as exc:  # the first write: nothing has been computed yet
+        raise InputError(f"cannot write there ({exc.strerror or exc}); choose another --out", file=out) from None
 
 
 def _run_baseline(scene, train_idx, test_idx, model, train_cfg, out: Path, argv, config: dict, progress: bool) -> dict:
@@ -305,6 +352,11 @@ def _run(args, argv) -> int:
     fmt = detect_format(scene_dir)
     downscale = args.downscale if args.downscale is not None else (8.0 if fmt == "llff" else 1.0)
     scene = load_scene(scene_dir, downscale=downscale)
+    from senerf.train.metrics import SSIM_MIN_SIDE
+
+    if min(scene.size) < SSIM_MIN_SIDE:
+        raise InputError(f"the images are {scene.size[1]}x{scene.size[0]} at downscale {downscale:g}; the "
+                         f"evaluation (SSIM) needs at least {SSIM_MIN_SIDE}x{SSIM_MIN_SIDE}", field="--downscale")
     protocol = args.protocol or ("views" if args.views is not None else
                                  ("llff" if scene.kind == "forward_facing" else "extreme"))
     train_idx, test_idx = fewshot_split(scene, protocol, views=args.views, n_views=args.n_views, seed=args.seed)
@@ -312,6 +364,7 @@ def _run(args, argv) -> int:
           f"{len(train_idx)} training views {list(map(int, train_idx))[:12]}{' ...' if len(train_idx) > 12 else ''}, "
           f"{len(test_idx)} test views")
     model = choose_model(scene, train_idx, {**PRESETS[args.preset]["model"], **_model_overrides(args)})
+    _check_model_fits(model)
     overrides = {k: v for k, v in (("steps", args.steps), ("batch_rays", args.batch_rays)) if v is not None}
     train_cfg = preset_train_config(args.preset, seed=args.seed, device=device, **overrides)
 

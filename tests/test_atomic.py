@@ -47,3 +47,16 @@ def test_failed_write_keeps_the_old_file_and_removes_the_temporary(tmp_path):
         atomic_write(target, boom)
     assert target.read_text() == "kept"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["a.txt"]
+
+
+def test_output_paths_that_cannot_be_created_are_refused_up_front(tmp_path):
+    from senerf.atomic import output_file, output_folder
+    from senerf.errors import InputError
+
+    (tmp_path / "afile").write_text("x")
+    with pytest.raises(InputError, match=r"afile/sub.*cannot be created: .*afile is not a folder; choose another --out"):
+        output_folder(tmp_path / "afile" / "sub" / "deeper", "--out")
+    with pytest.raises(InputError, match=r"x\.md.*cannot be created: .*afile is not a folder; choose another --into"):
+        output_file(tmp_path / "afile" / "x.md", "--into")
+    assert output_folder(tmp_path / "new" / "a", "--out") == tmp_path / "new" / "a"  # creatable: fine, not made
+    assert not (tmp_path / "new").exists()

@@ -100,15 +100,87 @@ def test_tiny_end_to_end_fit_resume_and_overwrite(tiny_scene, tmp_path, capsys):
     assert main([str(tiny_scene), "--out", str(out), *TINY, "--seed", "1"]) == 2
     assert "different run (train.seed: 0 in the folder, 1 now)" in _one_error_line(capsys)
     assert (out / "metrics.json").read_bytes() == before
-    # ... and so is a folder whose run.json cannot be read
+    # ... and a folder whose run.json senerf-fit did not write is refused even with --overwrite
     run_json = (out / "run.json").read_bytes()
-    (out / "run.json").write_text("{not json")
-    assert main([str(tiny_scene), "--out", str(out), *TINY]) == 2
-    assert "different run (its run.json is unreadable)" in _one_error_line(capsys)
+    for foreign in ("{not json", '{"name": "my experiment"}'):
+        (out / "run.json").write_text(foreign)
+        assert main([str(tiny_scene), "--out", str(out), *TINY, "--overwrite"]) == 2
+        assert "holds a run.json that senerf-fit did not write" in _one_error_line(capsys)
+        assert (out / "run.json").read_text() == foreign and (out / "metrics.json").read_bytes() == before
     (out / "run.json").write_bytes(run_json)
     # ... unless --overwrite
     assert main([str(tiny_scene), "--out", str(out), *TINY, "--seed", "1", "--overwrite"]) == 0
     assert json.loads((out / "metrics.json").read_text())["config"]["train"]["seed"] == 1
+
+
+def test_overwrite_never_deletes_what_senerf_fit_did_not_make(tiny_scene, tmp_path, capsys):
+    # A user's folder: no run.json of ours, but a metrics.json and a checkpoints folder of their own.
+    # Before, a foreign run.json counted as "a different run" and --overwrite deleted checkpoints/ (so at 71d19d4).
+    out = tmp_path / "proj"
+    (out / "checkpoints").mkdir(parents=True)
+    (out / "checkpoints" / "my_model.ckpt").write_bytes(b"mine")
+    (out / "metrics.json").write_text("{}")
+    assert main([str(tiny_scene), "--out", str(out), *TINY, "--overwrite"]) == 2
+    assert "is not a senerf-fit output folder but holds checkpoints" in _one_error_line(capsys)
+    (out / "run.json").write_text('{"name": "my experiment"}')
+    assert main([str(tiny_scene), "--out", str(out), *TINY, "--overwrite"]) == 2
+    assert "did not write" in _one_error_line(capsys)
+    assert (out / "checkpoints" / "my_model.ckpt").read_bytes() == b"mine"
+    assert sorted(p.name for p in out.iterdir()) == ["checkpoints", "metrics.json", "run.json"]
+    # other files are fine with --overwrite: the run goes beside them
+    other = tmp_path / "notes"
+    other.mkdir()
+    (other / "notes.txt").write_text("keep")
+    assert main([str(tiny_scene), "--out", str(other), *TINY]) == 2
+    assert "not a senerf-fit output folder; use --overwrite" in _one_error_line(capsys)
+
+
+def test_an_out_that_cannot_be_created_is_refused_before_any_work(tiny_scene, tmp_path, capsys):
+    (tmp_path / "afile").write_text("x")
+    assert main([str(tiny_scene), "--out", str(tmp_path / "afile" / "sub"), *TINY]) == 2
+    line = _one_error_line(capsys)
+    assert "--out" in line and "cannot be created" in line and "afile is not a folder" in line
+    assert (tmp_path / "afile").read_text() == "x"
+
+
+@pytest.mark.parametrize("flags, needle", [
+    (["--resolution", "1"], "argument --resolution: must be >= 2, got 1"),
+    (["--resolution", "100000"], "--resolution: 100000 needs"),
+    (["--seed", "99999999999999999999"], "argument --seed: must be >= 0 and <= 9223372036854775807"),
+    (["--downscale", "2"], "--downscale: the images are 8x8 at downscale 2; the evaluation (SSIM) needs at least 11x11"),
+])
+def test_bad_model_and_size_settings_are_refused_before_anything_is_written(tiny_scene, tmp_path, capsys, flags,
+                                                                           needle):
+    # Before, each of these crashed with a traceback after run.json was written, and that run.json then
+    # refused the corrected command (so at 71d19d4).
+    out = tmp_path / "o"
+    assert main([str(tiny_scene), "--out", str(out), *TINY, *flags]) == 2
+    assert needle in _one_error_line(capsys)
+    assert not out.exists()
+
+
+@pytest.mark.parametrize("position, needle", [
+    (0.0, "all stand at one camera centre"),     # a tripod pan: no parallax (math.log(0) crashed, so at 71d19d4)
+    (1e300, "the cameras' box cannot be computed"),  # norms overflow
+])
+def test_cameras_without_a_usable_position_are_refused(tiny_scene, tmp_path, capsys, position, needle):
+    import shutil as _shutil
+
+    scene = tmp_path / "scene"
+    _shutil.copytree(tiny_scene, scene)
+    for split in ("train", "val", "test"):
+        path = scene / f"transforms_{split}.json"
+        if path.exists():
+            meta = json.loads(path.read_text())
+            for i, frame in enumerate(meta["frames"]):
+                for row in range(3):
+                    frame["transform_matrix"][row][3] = position * (1.0 + row + 0.1 * i)
+            path.write_text(json.dumps(meta))
+    out = tmp_path / "o"
+    assert main([str(scene), "--out", str(out), *TINY]) == 2
+    line = _one_error_line(capsys)
+    assert needle in line and "camera positions" in line and str(scene) in line
+    assert not out.exists()
 
 
 def test_help_states_the_selftraining_defaults():

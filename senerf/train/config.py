@@ -316,6 +316,20 @@ def camera_aabb(c2w: np.ndarray, fov_deg: float, margin: float = 1.05) -> tuple[
     return np.stack([centre - half, centre + half]), dist, centre
 
 
+def _check_parallax(c2w: np.ndarray, scene, train_idx) -> None:
+    """:class:`InputError` when the cameras ``c2w (n, 4, 4)`` (n >= 2) all stand at one point: a pure
+    rotation (a tripod pan) has no parallax, so no depth, and no box can be placed around what they see."""
+    centres = np.asarray(c2w, dtype=np.float64)[:, :3, 3]
+    if centres.shape[0] < 2 or not np.isfinite(centres).all():
+        return
+    spread = float(np.max(np.abs(centres - centres[0])))
+    if spread <= 1e-9 * max(1.0, float(np.max(np.abs(centres)))):
+        views = [int(i) for i in np.asarray(train_idx).reshape(-1)][:12]
+        raise InputError(f"the training views {views} all stand at one camera centre (a pure rotation has no "
+                         "parallax, so no depth to fit); use views taken from different places",
+                         file=scene.root, field="camera positions")
+
+
 def _plane_resolution(image_size: int, extent_px: float) -> int:
     """Base plane resolution: about the pixels the box covers in one image, /2, multiple of 8, in [32, 128]."""
     res = int(round(extent_px / 2 / 8)) * 8
@@ -363,7 +377,13 @@ def choose_model(scene, train_idx, overrides: Mapping[str, Any] | None = None,
         chosen["multires"] = (1, 2, 4)
     else:
         cams = np.asarray(scene.c2w)[train_idx] if train_idx.size >= 2 else np.asarray(scene.c2w)
-        box, dist, centre = camera_aabb(cams, min(fov_x, fov_y))
+        _check_parallax(cams, scene, train_idx)
+        with np.errstate(over="ignore", invalid="ignore"):  # huge coordinates are refused just below
+            box, dist, centre = camera_aabb(cams, min(fov_x, fov_y))
+        if not (np.isfinite(box).all() and dist > 0 and math.isfinite(dist)):
+            raise InputError(f"the cameras' box cannot be computed (camera distance {dist:g} to the point "
+                             f"they look at); are the poses in a sane unit?", file=scene.root,
+                             field="camera positions")
         # 3 decimals at unit scale; more for small scenes (a 1e-4-scale scene would round to an empty box)
         half0 = float(box[1, 0] - box[0, 0]) / 2
         box = np.round(box, max(3, 3 - math.floor(math.log10(half0))) if half0 > 0 else 3)

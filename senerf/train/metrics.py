@@ -44,19 +44,24 @@ def psnr(a, b, data_range: float = 1.0) -> float:
     return float(10.0 * math.log10(data_range**2 / err))
 
 
+#: Smallest image side :func:`ssim` accepts: skimage's Gaussian window at sigma 1.5 (truncated at 3.5 sigma)
+#: is ``2 * int(3.5 * 1.5 + 0.5) + 1 = 11`` pixels wide.
+SSIM_MIN_SIDE = 11
+
+
 def ssim(a, b, data_range: float = 1.0) -> float:
     """Structural similarity as in ``skimage.metrics.structural_similarity(gaussian_weights=True,
     sigma=1.5, use_sample_covariance=False, data_range=1, channel_axis=-1)`` (the NeRF papers' SSIM).
 
     Args:
-        a, b: (H, W, 3) or (H, W) images, at least 7x7 pixels.
+        a, b: (H, W, 3) or (H, W) images, at least ``SSIM_MIN_SIDE`` (11) pixels per side.
         data_range: the value range of the images.
     """
     from skimage.metrics import structural_similarity
 
     a, b = _pair(a, b)
-    if min(a.shape[:2]) < 7:
-        raise ValueError(f"SSIM needs images of at least 7x7 pixels, got {a.shape[:2]}")
+    if min(a.shape[:2]) < SSIM_MIN_SIDE:
+        raise ValueError(f"SSIM needs images of at least {SSIM_MIN_SIDE}x{SSIM_MIN_SIDE} pixels, got {a.shape[:2]}")
     kwargs = dict(gaussian_weights=True, sigma=1.5, use_sample_covariance=False, data_range=data_range)
     if a.ndim == 3:
         kwargs["channel_axis"] = -1

@@ -60,3 +60,8 @@ def test_ssim_rejects_mismatched_or_tiny_images():
         ssim(np.zeros((8, 8, 3)), np.zeros((8, 9, 3)))
     with pytest.raises(ValueError):
         ssim(np.zeros((5, 5, 3)), np.zeros((5, 5, 3)))
+    # skimage's Gaussian window (sigma 1.5, truncated at 3.5 sigma) is 2 * int(3.5 * 1.5 + 0.5) + 1 = 11 wide:
+    # 10 px must be refused by our check (it was 7, so skimage's own error came out, so at 71d19d4), 11 px works
+    with pytest.raises(ValueError, match="at least 11x11"):
+        ssim(np.zeros((10, 12, 3)), np.zeros((10, 12, 3)))
+    assert ssim(np.full((11, 11, 3), 0.5), np.full((11, 11, 3), 0.5)) == pytest.approx(1.0)
