@@ -303,9 +303,17 @@ def _prepare_out(out: Path, identity: dict, overwrite: bool) -> None:
 
 
 def _run_baseline(scene, train_idx, test_idx, model, train_cfg, out: Path, argv, config: dict, progress: bool) -> dict:
-    """Iteration 0 only: train the teacher, evaluate, write metrics.json (DESIGN.md contract)."""
+    """Iteration 0 only: train the teacher, evaluate, write metrics.json (DESIGN.md contract).
+
+    A folder whose metrics.json already holds iteration 0 (this run's baseline, finished, perhaps followed
+    by self-training iterations) is left as it is: its rows are returned, nothing is retrained or dropped.
+    """
     from senerf.train import RayBatchSource, atomic_write_text, build_field, evaluate, train_field
 
+    done = _finished_metrics(out)
+    if done is not None:
+        print(f"{PROG}: iteration 0 is already done in {out} ({len(done['iterations'])} iteration(s) recorded)")
+        return done
     t0 = time.perf_counter()
     rays = RayBatchSource.from_scene(scene, train_idx, model, train_cfg.device)
     field = build_field(model, seed=train_cfg.seed, steps=train_cfg.steps)
@@ -323,6 +331,18 @@ def _run_baseline(scene, train_idx, test_idx, model, train_cfg, out: Path, argv,
                "seconds_total": seconds}
     atomic_write_text(out / "metrics.json", json.dumps(metrics, indent=1))
     return metrics
+
+
+def _finished_metrics(out: Path) -> dict | None:
+    """``out``'s metrics.json when it holds iteration 0, else None."""
+    try:
+        metrics = json.loads((out / "metrics.json").read_text())
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError):
+        return None
+    rows = metrics.get("iterations") if isinstance(metrics, dict) else None
+    if isinstance(rows, list) and any(isinstance(r, dict) and r.get("iteration") == 0 for r in rows):
+        return metrics
+    return None
 
 
 def _selftrain_available():

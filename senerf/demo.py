@@ -18,10 +18,15 @@ import tempfile
 from pathlib import Path
 
 from senerf.atomic import output_folder
+from senerf.errors import InputError
 
-__all__ = ["DEMO_PRESET", "demo_iterations", "ensure_demo_scene", "run_demo"]
+__all__ = ["DEMO_PRESET", "DEMO_OPTIONS", "demo_iterations", "ensure_demo_scene", "refuse_ignored_options", "run_demo"]
 
 DEMO_PRESET = "fast"
+#: ``senerf-fit`` options the demo uses; any other one given with ``--demo`` is refused, not ignored.
+DEMO_OPTIONS = frozenset({"demo", "out", "seed", "device", "quiet", "overwrite", "steps", "batch_rays"})
+#: What the demo writes into its folder.
+_DEMO_ENTRIES = frozenset({"demo_scene", "fit"})
 
 
 def demo_iterations() -> int:
@@ -53,6 +58,34 @@ def ensure_demo_scene(scene_dir: Path, seed: int = 0) -> Path:
     return scene_dir
 
 
+def refuse_ignored_options(args) -> None:
+    """:class:`InputError` naming the first option given with ``--demo`` that the demo does not use (the
+    demo chooses its scene, views, preset and iterations); options left at their defaults pass."""
+    from senerf.cli import build_parser
+
+    defaults = vars(build_parser().parse_args([]))
+    for name, value in vars(args).items():
+        if name not in DEMO_OPTIONS and value != defaults.get(name):
+            flag = "SCENE_DIR" if name == "scene" else "--" + name.replace("_", "-")
+            raise InputError(f"--demo chooses its own scene, views, preset and iterations; drop {flag} or fit a "
+                             "scene folder without --demo", field=flag)
+
+
+def _check_demo_folder(out: Path, overwrite: bool) -> None:
+    """Refuse an ``out`` holding other things than the demo's (unless ``overwrite``: the demo then goes
+    beside them), and always one whose ``demo_scene`` the demo did not write."""
+    if not out.is_dir():
+        return
+    names = {p.name for p in out.iterdir()}
+    scene = out / "demo_scene"
+    if scene.exists() and not (scene / "procedural.json").is_file():
+        raise InputError("holds a demo_scene that senerf-fit --demo did not write; choose another --out", file=out)
+    other = sorted(names - _DEMO_ENTRIES)
+    if other and not overwrite:
+        raise InputError(f"exists and is not a senerf-fit --demo output folder (it holds {other[0]}); use "
+                         "--overwrite to put the demo beside, or another --out", file=out)
+
+
 def run_demo(args) -> int:
     """Run the demo for parsed ``senerf-fit`` arguments.
 
@@ -62,7 +95,9 @@ def run_demo(args) -> int:
     from senerf.cli import main
     from senerf.procedural import DEMO_FEWSHOT_VIEWS
 
+    refuse_ignored_options(args)
     out = output_folder(args.out if args.out is not None else Path("runs") / "demo", "--out")
+    _check_demo_folder(out, args.overwrite)
     scene_dir = ensure_demo_scene(out / "demo_scene", seed=args.seed)
     fit_out = out / "fit"
     argv = [str(scene_dir), "--views", ",".join(map(str, DEMO_FEWSHOT_VIEWS)), "--preset", DEMO_PRESET,

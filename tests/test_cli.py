@@ -94,6 +94,15 @@ def test_tiny_end_to_end_fit_resume_and_overwrite(tiny_scene, tmp_path, capsys):
     again = json.loads((out / "metrics.json").read_text())
     assert again["iterations"][0]["per_view"] == it["per_view"]
 
+    # a folder extended by self-training keeps its rows when the baseline-only command is run again
+    # (before, metrics.json was rewritten with iteration 0 alone, so at 06e386d)
+    extended = dict(again, iterations=again["iterations"] + [dict(again["iterations"][0], iteration=1)])
+    (out / "metrics.json").write_text(json.dumps(extended))
+    assert main([str(tiny_scene), "--out", str(out), *TINY]) == 0
+    assert json.loads((out / "metrics.json").read_text()) == extended
+    assert "iteration 0 is already done" in capsys.readouterr().out
+    (out / "metrics.json").write_text(json.dumps(again))
+
     # a different run is refused, without touching the folder ...
     capsys.readouterr()
     before = (out / "metrics.json").read_bytes()

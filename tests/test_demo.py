@@ -44,3 +44,24 @@ def test_demo_refuses_a_file_as_out(tmp_path, capsys):
     err = capsys.readouterr().err.strip().splitlines()
     assert err == [f"senerf-fit: error: {a_file}: exists and is not a folder; choose another --out"]
     assert a_file.read_text() == "mine"
+
+
+def test_demo_refuses_options_it_would_ignore_and_a_users_folder(tmp_path, capsys):
+    # Before, --demo ignored --iterations / --views / --preset without a word and wrote demo_scene/ and
+    # fit/ beside a user's files (so at 06e386d).
+    user = tmp_path / "user"
+    user.mkdir()
+    (user / "notes.txt").write_text("mine")
+    for extra, flag in ((["--iterations", "0"], "--iterations"), (["--views", "5,6"], "--views"),
+                        (["--preset", "fast"], "--preset"), ([str(tmp_path)], "SCENE_DIR")):
+        assert main(["--demo", "--out", str(tmp_path / "d"), "--quiet", *extra]) == 2
+        (line,) = capsys.readouterr().err.strip().splitlines()
+        assert line.startswith(f"senerf-fit: error: {flag}: --demo chooses its own") and f"drop {flag}" in line
+    assert main(["--demo", "--out", str(user), "--quiet"]) == 2
+    (line,) = capsys.readouterr().err.strip().splitlines()
+    assert "not a senerf-fit --demo output folder (it holds notes.txt)" in line
+    (user / "demo_scene").mkdir()
+    assert main(["--demo", "--out", str(user), "--quiet", "--overwrite"]) == 2
+    (line,) = capsys.readouterr().err.strip().splitlines()
+    assert "holds a demo_scene that senerf-fit --demo did not write" in line
+    assert sorted(p.name for p in user.iterdir()) == ["demo_scene", "notes.txt"] and not (tmp_path / "d").exists()
