@@ -399,6 +399,14 @@ def _run(args, argv) -> int:
             st_cfg = selftrain[0](iterations=iterations, seed=args.seed, **_selftrain_flags(args),
                                   **_selftrain_overrides(args))
 
+    if st_cfg is not None and st_cfg.reliability == "oracle":
+        import numpy as np
+
+        held_out = np.setdiff1d(np.arange(scene.n_images), np.union1d(train_idx, test_idx))
+        if held_out.size == 0:  # checked now, not after the baseline has trained
+            raise InputError(f"--reliability oracle needs held-out views (neither training nor test); protocol "
+                             f"{protocol} leaves none of the {scene.n_images} images", file=scene_dir,
+                             field="--reliability")
     out = args.out if args.out is not None else Path("runs") / f"{scene.name}-{protocol}"
     config = dict(scene_dir=str(scene_dir.resolve()), format=fmt, downscale=downscale, protocol=protocol,
                   views=args.views, n_views=args.n_views, preset=args.preset, train=config_to_dict(train_cfg),

@@ -157,11 +157,13 @@ def test_an_out_that_cannot_be_created_is_refused_before_any_work(tiny_scene, tm
     (["--resolution", "100000"], "--resolution: 100000 needs"),
     (["--seed", "99999999999999999999"], "argument --seed: must be >= 0 and <= 9223372036854775807"),
     (["--downscale", "2"], "--downscale: the images are 8x8 at downscale 2; the evaluation (SSIM) needs at least 11x11"),
+    (["--reliability", "oracle", "--iterations", "1", "--features", "daisy"],  # protocol all: nothing held out
+     "--reliability: --reliability oracle needs held-out views (neither training nor test)"),
 ])
 def test_bad_model_and_size_settings_are_refused_before_anything_is_written(tiny_scene, tmp_path, capsys, flags,
                                                                            needle):
     # Before, each of these crashed with a traceback after run.json was written, and that run.json then
-    # refused the corrected command (so at 71d19d4).
+    # refused the corrected command (so at 71d19d4); the oracle's check came after the baseline's training.
     out = tmp_path / "o"
     assert main([str(tiny_scene), "--out", str(out), *TINY, *flags]) == 2
     assert needle in _one_error_line(capsys)

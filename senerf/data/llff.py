@@ -189,7 +189,11 @@ def load_llff(root: Path, downscale: float = 1.0, bd_factor: float | None = 0.75
     # folder is resized to the size implied by the full resolution.  Intrinsics scale per axis.
     exact = _folder_factor(folder.name) == downscale
     size = None if exact else _io.target_size(full_h, full_w, downscale)
-    rgb, alpha, _ = _io.load_images(paths, [p.name for p in paths], [folder] * n, size=size)
+    rgb, alpha, native = _io.load_images(paths, [p.name for p in paths], [folder] * n, size=size)
+    k = _folder_factor(folder.name)
+    if abs(native[0] * k - full_h) > k or abs(native[1] * k - full_w) > k:  # more than one image pixel off
+        raise InputError(f"images are {native[1]}x{native[0]}, but poses_bounds.npy's H, W = {full_h}, {full_w} "
+                         f"at factor {k} give {full_w / k:.0f}x{full_h / k:.0f}", file=folder, field="images")
     h, w = rgb.shape[1:3]
     intr = tuple(Intrinsics(f, f, 0.5 * full_w, 0.5 * full_h, full_w, full_h).resized(w, h) for f in hwf[:, 2])
     idx = np.arange(n)

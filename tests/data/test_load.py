@@ -1,6 +1,6 @@
 """Tests of senerf/data/load.py: format detection, downscaling, background, and the bad-input table.
 
-The table ``BAD_INPUT`` holds 38 bad-input cases; each builds a scene folder in tmp_path, breaks one thing
+The table ``BAD_INPUT`` holds 39 bad-input cases; each builds a scene folder in tmp_path, breaks one thing
 and checks that ``load_scene`` raises ``InputError`` whose message names the file and the field (one line).
 Accepted-but-unusual inputs (grey / 16-bit / RGB-only images, missing ngp images) are tested in
 test_io.py and test_blender.py.
@@ -257,6 +257,12 @@ def case_llff_focals_differ(tmp, w):
     rows[6, 14] *= 1.01  # NDC is built from one focal: a second one would silently bend view 6's rays
     root = w.llff(tmp / "llff", rows=rows)
     return (lambda: load_scene(root, downscale=2), "poses_bounds.npy", "row 6 hwf.f", "share one focal")
+
+
+def case_llff_size_disagrees_with_images(tmp, w):
+    rows = w.llff_rows(H=1000.0, W=800.0)  # images_2 holds 24x16 files: 800x1000 / 2 would be 400x500
+    root = w.llff(tmp / "llff", rows=rows)
+    return (lambda: load_scene(root, downscale=2), "images_2", "images", "H, W = 1000, 800 at factor 2 give 400x500")
 
 
 def case_llff_bad_bounds(tmp, w):
