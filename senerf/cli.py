@@ -252,6 +252,19 @@ _RUN_KEYS = frozenset({"scene_dir", "format", "protocol", "train", "model"})
 _OUTPUT_NAMES = ("checkpoints", "metrics.json", _RUN_FILE)
 
 
+def _comparable(identity: dict) -> dict:
+    """``identity`` with the self-training overrides that equal their defaults left out (an override given
+    explicitly at its default value, or recorded as None, names the same run as one not given)."""
+    defaults = {"empty_opacity": EMPTY_OPACITY_DEFAULT, "pseudo_range_deg": PSEUDO_RANGE_DEFAULT,
+                "pseudo_range_step_deg": PSEUDO_RANGE_STEP_DEFAULT, "n_pseudo_per_input": PSEUDO_VIEWS_DEFAULT,
+                "batch_empty": BATCH_EMPTY_DEFAULT, "student_grid": STUDENT_GRID_DEFAULT}
+    flags = identity.get("selftrain_flags")
+    if not isinstance(flags, dict):
+        return identity
+    kept = {k: v for k, v in flags.items() if not (k in defaults and (v is None or v == defaults[k]))}
+    return {**identity, "selftrain_flags": kept}
+
+
 def _own_outputs(out: Path) -> list[Path]:
     """The entries of ``out`` with the names senerf-fit writes (``iter_*`` folders included)."""
     found = [out / name for name in _OUTPUT_NAMES if (out / name).exists()]
@@ -278,9 +291,9 @@ def _prepare_out(out: Path, identity: dict, overwrite: bool) -> None:
         if not (isinstance(old, dict) and _RUN_KEYS <= old.keys()):
             raise InputError(f"holds a {_RUN_FILE} that senerf-fit did not write; choose another --out "
                              f"(--overwrite never deletes files it did not make)", file=out)
-        if old != identity:
+        if _comparable(old) != _comparable(identity):
             if not overwrite:
-                diffs = settings_differences(old, identity)
+                diffs = settings_differences(_comparable(old), _comparable(identity))
                 what = differences_text(diffs) if diffs else "settings differ"
                 raise InputError(f"holds a different run ({what}); use --overwrite or another --out", file=out)
             for target in _own_outputs(out):
@@ -365,10 +378,10 @@ def _run(args, argv) -> int:
         raise InputError("a SCENE_DIR is required (or --demo)", field="SCENE_DIR")
     device = _check_device(args.device)
 
-    from senerf.data import detect_format, fewshot_split, load_scene
+    from senerf.data import detect_format, fewshot_split, load_scene, scene_root
     from senerf.train import PRESETS, choose_model, config_to_dict, preset_train_config
 
-    scene_dir = Path(args.scene)
+    scene_dir = scene_root(args.scene)  # a marker file (transforms_train.json, ...) names its folder
     fmt = detect_format(scene_dir)
     downscale = args.downscale if args.downscale is not None else (8.0 if fmt == "llff" else 1.0)
     scene = load_scene(scene_dir, downscale=downscale)
@@ -442,9 +455,23 @@ def _one_line_warning(message, category, filename, lineno, file=None, line=None)
     print(f"{PROG}: warning: {text}", file=sys.stderr if file is None else file)
 
 
+def _attach_negative_values(argv: list[str]) -> list[str]:
+    """``--views -1,0`` as ``--views=-1,0``: argparse takes a value starting with ``-`` for an option and
+    reports "expected one argument"; attached, the value reaches its own check (and its clear message)."""
+    out, i = [], 0
+    while i < len(argv):
+        if argv[i] == "--views" and i + 1 < len(argv) and argv[i + 1][:1] == "-" and argv[i + 1][1:2].isdigit():
+            out.append(f"--views={argv[i + 1]}")
+            i += 2
+            continue
+        out.append(argv[i])
+        i += 1
+    return out
+
+
 def main(argv: list[str] | None = None) -> int:
     """Entry point of ``senerf-fit``; returns the exit status (0 ok, 2 bad input, 1 internal error)."""
-    argv = list(sys.argv[1:] if argv is None else argv)
+    argv = _attach_negative_values(list(sys.argv[1:] if argv is None else argv))
     # OpenMP threads that spin while waiting make small torch ops ~50x slower when the cores are shared
     # (measured on the 2-core machines: a K-Planes TV step 2.3 s -> 0.03 s); sleeping waits avoid that.
     # Only effective before torch is first imported; an explicit setting by the user wins.

@@ -245,3 +245,34 @@ def test_selftraining_flags_reach_the_config(tiny_scene, tmp_path, monkeypatch, 
                   "n_pseudo_per_input"):
         assert getattr(cfg, field) == expected.get(field, getattr(defaults, field)), field
     assert cfg.pseudo_range(2) == cfg.pseudo_range_deg + cfg.pseudo_range_step_deg
+
+
+def test_a_default_given_explicitly_resumes_the_same_run(tiny_scene, tmp_path, monkeypatch, capsys):
+    # Before, `--empty-opacity 0.2` (the default) was "a different run (selftrain_flags.empty_opacity: null in
+    # the folder, 0.2 now)" (so at 4f9d442).
+    import senerf.cli as cli
+    from senerf.selftrain import SelfTrainConfig
+
+    monkeypatch.setattr(cli, "_selftrain_available",
+                        lambda: ((SelfTrainConfig, lambda *a, **k: {"iterations": []}), None))
+    argv = [str(tiny_scene), "--out", str(tmp_path / "o"), *TINY, "--iterations", "1"]
+    assert main(argv) == 0
+    for same in (["--empty-opacity", "0.2"], ["--pseudo-views", "8", "--student-grid", "teacher"], []):
+        assert main(argv + same) == 0, same
+    capsys.readouterr()
+    assert main(argv + ["--pseudo-views", "9"]) == 2
+    assert "different run (selftrain_flags.n_pseudo_per_input: absent in the folder, 9 now)" in _one_error_line(capsys)
+
+
+def test_negative_views_get_the_range_message_and_a_file_is_not_missing(tiny_scene, tmp_path, capsys):
+    # `--views -1,0` gave argparse's "expected one argument" (so at ed16e9a)
+    assert main([str(tiny_scene), "--out", str(tmp_path / "o"), *SMALL, "--views", "-1,0"]) == 2
+    assert "--views: view index -1 out of range" in _one_error_line(capsys)
+    # the scene's marker file names its folder (it said "scene folder not found"); another file is a file
+    out = tmp_path / "o2"
+    assert main([str(tiny_scene / "transforms_train.json"), "--out", str(out), *TINY]) == 0
+    assert json.loads((out / "run.json").read_text())["scene_dir"] == str(tiny_scene.resolve())
+    capsys.readouterr()
+    assert main([str(out / "metrics.json"), "--out", str(tmp_path / "o3"), *TINY]) == 2
+    assert "metrics.json: is a file; expected a scene folder" in _one_error_line(capsys)
+    assert not (tmp_path / "o").exists() and not (tmp_path / "o3").exists()

@@ -17,13 +17,14 @@ See :mod:`senerf.data.load` (detection, downscaling), :mod:`senerf.data.blender`
 from .blender import load_blender, load_ngp
 from .fewshot import EXTREME_VIEWS, INFONERF4_VIEWS, PROTOCOLS, fewshot_split
 from .llff import load_llff, recenter_poses
-from .load import detect_format, load_scene
+from .load import detect_format, load_scene, scene_root
 from .scene import Scene
 
 __all__ = [
     "Scene",
     "load_scene",
     "detect_format",
+    "scene_root",
     "load_blender",
     "load_ngp",
     "load_llff",

@@ -68,7 +68,19 @@ def _frame_entry(root: Path, meta: dict, frame: dict, i: int, file: Path) -> dic
     c2w = _io.as_pose(_io.get_field(frame, "transform_matrix", file, f"{prefix}.transform_matrix"),
                       file, f"{prefix}.transform_matrix")
     params = _camera_params(meta, frame, file, prefix)
-    return dict(path=path, field=f"{prefix}.file_path", file=file, params=params, c2w_gl=c2w)
+    distortion = [k for k in _DISTORTION_KEYS if frame.get(k, meta.get(k, 0.0)) not in (0, 0.0, None)]
+    return dict(path=path, field=f"{prefix}.file_path", file=file, params=params, c2w_gl=c2w,
+                distortion=distortion, frame=prefix)
+
+
+def _warn_distortion(entries: list, file: Path) -> None:
+    """One warning for all frames of ``file`` whose distortion coefficients are ignored (not one per frame)."""
+    hit = [e for e in entries if e["distortion"]]
+    if hit:
+        keys = sorted({k for e in hit for k in e["distortion"]})
+        where = ", ".join(e["frame"] for e in hit[:3]) + (", ..." if len(hit) > 3 else "")
+        warnings.warn(f"{file}: distortion {keys} ignored in {len(hit)} of {len(entries)} frame(s) ({where}); "
+                      "the images are used as pinhole", stacklevel=3)
 
 
 def _camera_params(meta: dict, frame: dict, file: Path, prefix: str) -> dict:
@@ -91,9 +103,6 @@ def _camera_params(meta: dict, frame: dict, file: Path, prefix: str) -> dict:
     model = frame.get("camera_model", meta.get("camera_model"))
     if isinstance(model, str) and model.upper() in _UNSUPPORTED_MODELS:
         raise InputError(f"camera model {model!r} is not supported (pinhole only)", file=file, field="camera_model")
-    nonzero = [k for k in _DISTORTION_KEYS if frame.get(k, meta.get(k, 0.0)) not in (0, 0.0, None)]
-    if nonzero:
-        warnings.warn(f"{file}: {prefix}: distortion {nonzero} ignored (images are used as pinhole)", stacklevel=3)
     return out
 
 
@@ -172,6 +181,7 @@ def load_blender(root: Path, downscale: float = 1.0) -> Scene:
             if not entry["path"].is_file():
                 raise InputError(f"image not found: {entry['path']}", file=file, field=entry["field"])
             entries.append(entry)
+        _warn_distortion(entries[start:], file)
         splits[split] = np.arange(start, len(entries), dtype=np.int64)
     return _build(root, entries, downscale, splits)
 
@@ -224,6 +234,7 @@ def load_ngp(root: Path, downscale: float = 1.0) -> Scene:
             split_idx["train"].append(k)
     if not entries:
         raise InputError("no frame has an existing image", file=file, field="frames")
+    _warn_distortion(entries, file)
     if missing:
         warnings.warn(f"{file}: skipped {len(missing)} frame(s) whose image is missing: {', '.join(missing)}",
                       stacklevel=2)

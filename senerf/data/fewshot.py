@@ -120,7 +120,8 @@ def fewshot_split(scene: Scene, protocol: str = "extreme", views=None, n_views=N
         raise InputError(f"unknown protocol {protocol!r}; expected one of {', '.join(PROTOCOLS)}",
                          field="--protocol")
     if views is not None and protocol not in ("extreme", "views"):
-        raise InputError(f"explicit views are not used by protocol {protocol!r} (use 'views')", field="--views")
+        raise InputError(f"explicit views are not used by protocol {protocol!r} (give --views without "
+                         "--protocol; in Python, protocol 'views')", field="--views")
     if n_views is not None and protocol not in ("llff", "random8"):
         raise InputError(f"not used by protocol {protocol!r} (only 'llff' and 'random8')", field="--n-views")
     train_split = scene.splits["train"]

@@ -28,15 +28,30 @@ from .blender import load_blender, load_ngp
 from .llff import load_llff
 from .scene import Scene, as_background
 
-__all__ = ["load_scene", "detect_format", "FORMAT_FILES"]
+__all__ = ["load_scene", "detect_format", "scene_root", "FORMAT_FILES"]
 
 #: Marker file of each format, in detection order.
 FORMAT_FILES = (("blender", "transforms_train.json"), ("ngp", "transforms.json"), ("llff", "poses_bounds.npy"))
+#: Files that name their scene folder when given instead of it.
+_MARKER_NAMES = frozenset({m for _, m in FORMAT_FILES} | {"transforms_val.json", "transforms_test.json"})
+
+
+def scene_root(path) -> Path:
+    """The scene folder of ``path``: the path itself, or the folder of a marker file given instead
+    (``transforms_train.json``, ``transforms.json``, ``poses_bounds.npy``, ...).  Not checked further."""
+    path = Path(path)
+    return path.parent if path.is_file() and path.name in _MARKER_NAMES else path
+
 
 
 def detect_format(root) -> str:
     """``'blender'``, ``'ngp'`` or ``'llff'`` for a scene folder; ``InputError`` when it matches none."""
     root = Path(root)
+    if root.is_file() and root.name in _MARKER_NAMES:  # the scene's own marker file names its folder
+        root = root.parent
+    if root.is_file():
+        raise InputError(f"is a file; expected a scene folder (or one of its {', '.join(sorted(_MARKER_NAMES))})",
+                         file=root)
     if not root.is_dir():
         raise InputError("scene folder not found", file=root)
     for fmt, marker in FORMAT_FILES:
@@ -82,11 +97,7 @@ def load_scene(path, downscale: float = 1, background=None) -> Scene:
     """
     d = _check_downscale(downscale)
     bg = None if background is None else as_background(background)
-    root = Path(path)
-    if root.is_file() and root.name in {m for _, m in FORMAT_FILES} | {"transforms_val.json", "transforms_test.json"}:
-        root = root.parent
-    elif root.exists() and not root.is_dir():
-        raise InputError("expected a scene folder", file=root)
+    root = scene_root(path)
     fmt = detect_format(root)
     loader = {"blender": load_blender, "ngp": load_ngp, "llff": load_llff}[fmt]
     scene = loader(root, downscale=d)

@@ -337,6 +337,12 @@ def test_marker_file_path_is_accepted(tmp_path, writers):
     root = writers.blender(tmp_path / "b")
     scene = load_scene(root / "transforms_train.json")
     assert scene.root == root and scene.n_images == 4
+    # detect_format too (senerf-fit calls it first: it said "scene folder not found", so at ed16e9a), and
+    # any other file is named as a file, not as missing
+    assert detect_format(root / "transforms_test.json") == "blender"
+    (tmp_path / "notes.txt").write_text("x")
+    with pytest.raises(InputError, match=r"notes\.txt: is a file; expected a scene folder"):
+        detect_format(tmp_path / "notes.txt")
 
 
 # --- downscaling -----------------------------------------------------------------------------------------

@@ -137,6 +137,8 @@ def test_fit_resume_refuses_a_code_running_checkpoint(scene24, tmp_path, capsys,
     marker = tmp_path / "pwned"
     ckpt = out / "checkpoints" / where
     _craft(ckpt, marker)
+    if iterations == "0":  # a finished baseline is not reloaded: make it an interrupted one, which is
+        (out / "metrics.json").unlink()
     before = snapshot(out)
     capsys.readouterr()
     i = base.index("--iterations")
