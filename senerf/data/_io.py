@@ -71,14 +71,16 @@ def get_field(obj: dict, key: str, file: Path, field: str):
     return obj[key]
 
 
+def _is_json_number(value) -> bool:
+    """A JSON number: int or float (NumPy's included), not a bool and not a string."""
+    return isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, (bool, np.bool_))
+
+
 def as_positive(value, file: Path, field: str) -> float:
     """A positive finite float (focal lengths, principal points, sizes, angles); ``InputError`` otherwise."""
-    if isinstance(value, bool):
+    if not _is_json_number(value):  # "0.69" (a string) or true are mistakes in the file, not numbers
         raise InputError(f"expected a number, got {value!r}", file=file, field=field)
-    try:
-        v = float(value)
-    except (TypeError, ValueError):
-        raise InputError(f"expected a number, got {value!r}", file=file, field=field) from None
+    v = float(value)
     if not math.isfinite(v) or v <= 0.0:
         raise InputError(f"must be positive and finite, got {value!r}", file=file, field=field)
     return v
@@ -90,9 +92,12 @@ def as_pose(value, file: Path, field: str) -> np.ndarray:
     Accepts a 4x4 or 3x4 nested list (3x4 gets the row ``0 0 0 1``).  The frame convention is *not*
     changed here; callers convert at their edge.
     """
+    rows = value if isinstance(value, (list, tuple)) else None
+    if rows is None or not all(isinstance(r, (list, tuple)) and all(_is_json_number(x) for x in r) for r in rows):
+        raise InputError("expected a 4x4 matrix of numbers (a list of rows)", file=file, field=field)
     try:
         arr = np.asarray(value, dtype=np.float64)
-    except (TypeError, ValueError):
+    except (TypeError, ValueError):  # ragged rows
         raise InputError("expected a 4x4 matrix of numbers", file=file, field=field) from None
     if arr.shape == (3, 4):
         arr = np.concatenate([arr, [[0.0, 0.0, 0.0, 1.0]]], axis=0)

@@ -1,6 +1,6 @@
 """Tests of senerf/data/load.py: format detection, downscaling, background, and the bad-input table.
 
-The table ``BAD_INPUT`` holds 39 bad-input cases; each builds a scene folder in tmp_path, breaks one thing
+The table ``BAD_INPUT`` holds 41 bad-input cases; each builds a scene folder in tmp_path, breaks one thing
 and checks that ``load_scene`` raises ``InputError`` whose message names the file and the field (one line).
 Accepted-but-unusual inputs (grey / 16-bit / RGB-only images, missing ngp images) are tested in
 test_io.py and test_blender.py.
@@ -125,6 +125,19 @@ def case_bad_last_row(tmp, w):
 def case_matrix_shape(tmp, w):
     root = _edit_train(tmp, w, _set_matrix(np.eye(3).tolist()))
     return (lambda: load_scene(root), "transforms_train.json", "frames[1].transform_matrix", "4x4")
+
+
+def case_angle_as_string(tmp, w):
+    # a string is a mistake in the file, not a number (float("0.69") accepted it, so at 7e504ce)
+    root = _edit_train(tmp, w, lambda m: m.update(camera_angle_x="0.69"))
+    return (lambda: load_scene(root), "transforms_train.json", "camera_angle_x", "expected a number, got '0.69'")
+
+
+def case_matrix_of_booleans(tmp, w):
+    rows = [[True, False, False, False], [False, True, False, False], [False, False, True, False],
+            [False, False, False, True]]  # a rigid identity as 0/1: accepted before
+    root = _edit_train(tmp, w, _set_matrix(rows))
+    return (lambda: load_scene(root), "transforms_train.json", "frames[1].transform_matrix", "matrix of numbers")
 
 
 def case_zero_angle(tmp, w):
