@@ -334,7 +334,7 @@ def _run_baseline(scene, train_idx, test_idx, model, train_cfg, out: Path, argv,
                          progress=progress)
     ev = evaluate(result.field, scene, test_idx, out / "iter_0" / "test", model, occupancy=result.occupancy,
                   device=train_cfg.device, progress=progress)
-    seconds = time.perf_counter() - t0
+    seconds = time.perf_counter() - t0 + result.seconds_before  # an interrupted call's training counts too
     h, w = scene.intrinsics.size
     metrics = {"senerf_version": __version__, "command": list(argv), "config": config, "scene": scene.name,
                "train_views": [int(i) for i in train_idx], "test_views": [int(i) for i in test_idx],

@@ -534,6 +534,7 @@ def run_selftraining(scene, train_idx, test_idx, model, train_cfg, cfg: SelfTrai
     rays = RayBatchSource.from_scene(scene, train_idx, model, device)
     extractor = None
     known_feats = None
+    carried = 0.0  # training seconds of interrupted earlier calls, from the checkpoints resumed
     for k in range(start, cfg.iterations + 1):
         t_it = time.perf_counter()
         reliable_fraction = None
@@ -570,17 +571,19 @@ def run_selftraining(scene, train_idx, test_idx, model, train_cfg, cfg: SelfTrai
         result = train_field(field, rays, tcfg, extra_loss=extra, checkpoint=ckpt_dir / f"iter_{k}_train.pt",
                              progress=progress)
         teacher, occupancy = result.field, result.occupancy
+        carried += result.seconds_before
         teacher.eval()
         ev = evaluate(teacher, scene, test_idx, out / f"iter_{k}" / "test", model, occupancy=occupancy,
                       device=device, progress=progress)
         rf = None if reliable_fraction is None or math.isnan(reliable_fraction) else float(reliable_fraction)
         metrics["iterations"].append(dict(iteration=k, psnr=ev["psnr"], ssim=ev["ssim"], lpips=ev["lpips"],
                                           avg=ev["avg"], reliable_fraction=rf,
-                                          seconds=time.perf_counter() - t_it, per_view=ev["per_view"]))
+                                          seconds=time.perf_counter() - t_it + result.seconds_before,
+                                          per_view=ev["per_view"]))
         _save_teacher(teacher_path, teacher, occupancy, k, settings, metrics["iterations"])
-        metrics["seconds_total"] = seconds_before + time.perf_counter() - t_run
+        metrics["seconds_total"] = seconds_before + carried + time.perf_counter() - t_run
         atomic_write_text(metrics_path, json.dumps(metrics, indent=1))
         echo(f"selftrain: iteration {k}: test PSNR {ev['psnr']:.2f} dB, SSIM {ev['ssim']:.3f}")
-    metrics["seconds_total"] = seconds_before + time.perf_counter() - t_run
+    metrics["seconds_total"] = seconds_before + carried + time.perf_counter() - t_run
     atomic_write_text(metrics_path, json.dumps(metrics, indent=1))
     return metrics

@@ -42,6 +42,10 @@ class TrainResult:
         steps: steps done in total (including those before a resume).
         resumed_from: step the run resumed from (0 for a fresh run).
         seconds: wall time of this call.
+        seconds_before: training seconds recorded in the checkpoint this call resumed from (0 for a fresh
+            run, or a checkpoint written before they were recorded): ``seconds + seconds_before`` is the
+            training time of the steps done, whatever the interruptions (the steps after the last checkpoint
+            of an interrupted call are redone and counted again).
         history: ``[{step, loss, psnr, lr, ...extra logs}]`` every ``log_every`` steps.
     """
 
@@ -50,6 +54,7 @@ class TrainResult:
     steps: int
     resumed_from: int
     seconds: float
+    seconds_before: float = 0.0
     history: list = dc_field(default_factory=list)
 
 
@@ -92,10 +97,11 @@ def _fingerprint(cfg: TrainConfig, rays: RayBatchSource, field: torch.nn.Module)
     return hashlib.sha256(json.dumps(desc, sort_keys=True).encode()).hexdigest()[:16]
 
 
-def _state(field, optimizer, generator, occupancy, step: int, fingerprint: str) -> dict:
+def _state(field, optimizer, generator, occupancy, step: int, fingerprint: str, seconds: float) -> dict:
     state = dict(format="senerf-train-1", step=int(step), fingerprint=fingerprint,
                  field=field.state_dict(), optimizer=optimizer.state_dict(),
-                 generator=generator.get_state(), generator_device=generator.device.type)
+                 generator=generator.get_state(), generator_device=generator.device.type,
+                 seconds=float(seconds))
     if occupancy is not None:
         state["occupancy"] = occupancy.state_dict()
     return state
@@ -141,7 +147,9 @@ def _continuation_seed(seed: int, step: int) -> int:
     return int(hashlib.sha256(f"senerf-resume:{int(seed)}:{int(step)}".encode()).hexdigest()[:15], 16)
 
 
-def _restore(path: Path, field, optimizer, generator, occupancy, fingerprint: str, device, seed: int) -> int:
+def _restore(path: Path, field, optimizer, generator, occupancy, fingerprint: str, device, seed: int
+             ) -> tuple[int, float]:
+    """Load a training checkpoint into the objects; returns ``(step, training seconds recorded in it)``."""
     state = load_checkpoint(path, map_location=device)
     if state.get("format") != "senerf-train-1":
         raise InputError("not a senerf training checkpoint", file=path)
@@ -153,7 +161,8 @@ def _restore(path: Path, field, optimizer, generator, occupancy, fingerprint: st
     _restore_generator(path, generator, state, seed)
     if occupancy is not None:
         load_state_keeping_box(occupancy, state["occupancy"])
-    return int(state["step"])
+    seconds = state.get("seconds", 0.0)  # absent in checkpoints written before it was recorded
+    return int(state["step"]), float(seconds) if isinstance(seconds, (int, float)) and seconds >= 0 else 0.0
 
 
 def train_field(field: torch.nn.Module, rays: RayBatchSource, cfg: TrainConfig,
@@ -197,10 +206,11 @@ def train_field(field: torch.nn.Module, rays: RayBatchSource, cfg: TrainConfig,
     optimizer = torch.optim.Adam(field.parameters(), lr=cfg.lr, eps=1e-15)
     occupancy = make_occupancy(model, device)
     fingerprint = _fingerprint(cfg, rays, field)
-    start = 0
+    start, seconds_before = 0, 0.0
     ckpt = Path(checkpoint) if checkpoint is not None else None
     if ckpt is not None and ckpt.exists():
-        start = _restore(ckpt, field, optimizer, generator, occupancy, fingerprint, device, cfg.seed)
+        start, seconds_before = _restore(ckpt, field, optimizer, generator, occupancy, fingerprint, device,
+                                         cfg.seed)
 
     history: list[dict] = []
     t_start = time.perf_counter()
@@ -259,9 +269,10 @@ def train_field(field: torch.nn.Module, rays: RayBatchSource, cfg: TrainConfig,
             bar.update(1)
         if ckpt is not None and ((cfg.checkpoint_every and done % cfg.checkpoint_every == 0)
                                  or done == cfg.steps):
-            save_checkpoint(ckpt, _state(field, optimizer, generator, occupancy, done, fingerprint))
+            save_checkpoint(ckpt, _state(field, optimizer, generator, occupancy, done, fingerprint,
+                                         seconds_before + time.perf_counter() - t_start))
     if bar is not None:
         bar.close()
     field.eval()
     return TrainResult(field=field, occupancy=occupancy, steps=max(cfg.steps, start), resumed_from=start,
-                       seconds=time.perf_counter() - t_start, history=history)
+                       seconds=time.perf_counter() - t_start, seconds_before=seconds_before, history=history)

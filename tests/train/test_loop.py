@@ -84,6 +84,7 @@ def test_resume_reproduces_uninterrupted_run(tmp_path):
 
     _crash_at_step_8(rays, cfg, tmp_path / "b.pt")
     assert torch.load(tmp_path / "b.pt", weights_only=True)["step"] == 5
+    at_5 = torch.load(tmp_path / "b.pt", weights_only=True)["seconds"]
     fresh = build_field(MODEL, seed=1)
     resumed = train_field(fresh, rays, cfg, extra_loss=_zero_loss, checkpoint=tmp_path / "b.pt", progress=False)
     assert resumed.resumed_from == 5
@@ -92,6 +93,11 @@ def test_resume_reproduces_uninterrupted_run(tmp_path):
     for k in a:
         assert torch.equal(a[k], b[k]), k
     assert torch.equal(full.occupancy.mask, resumed.occupancy.mask)
+    # the interrupted call's training time is carried: the checkpoint records it and the resume reports it
+    # (before, a resumed run's seconds counted only the resumed part, so at b013c1a)
+    assert full.seconds_before == 0.0 and at_5 > 0.0 and resumed.seconds_before == at_5
+    final = torch.load(tmp_path / "b.pt", weights_only=True)["seconds"]
+    assert at_5 < final <= at_5 + resumed.seconds
     # and the parameters really changed during training (the comparison is not between two inits)
     init = build_field(MODEL, seed=1).state_dict()
     assert not torch.equal(init["table"], a["table"])
