@@ -28,6 +28,7 @@ import warnings
 from pathlib import Path
 
 from senerf import __version__
+from senerf.cliargs import OneLineParser, argument_type, float_flag, int_flag
 from senerf.errors import InputError
 
 __all__ = ["main", "build_parser", "parse_views"]
@@ -35,13 +36,6 @@ __all__ = ["main", "build_parser", "parse_views"]
 PROG = "senerf-fit"
 _CLI_PROTOCOLS = ("extreme", "llff", "all", "infonerf4", "random8")
 _RUN_FILE = "run.json"
-
-
-class _Parser(argparse.ArgumentParser):
-    """argparse that raises :class:`InputError` instead of printing usage and exiting."""
-
-    def error(self, message: str):  # noqa: D401 - argparse hook
-        raise InputError(message)
 
 
 def parse_views(text: str) -> list[int]:
@@ -55,78 +49,34 @@ def parse_views(text: str) -> list[int]:
         raise InputError(f"expected comma-separated integers like 0,1,51, got {text!r}", field="--views") from None
 
 
-def _argument_type(convert):
-    """An argparse ``type`` from a converter raising :class:`InputError`: argparse reports a ValueError as
-    "invalid <function> value", so the problem is handed over as an ``ArgumentTypeError`` (argparse then
-    writes ``argument --flag: <problem>``)."""
-    def checked(text: str):
-        try:
-            return convert(text)
-        except InputError as exc:
-            raise argparse.ArgumentTypeError(exc.problem) from None
-    return checked
-
-
-def _positive_int(flag: str, allow_zero: bool = False, minimum: int | None = None, maximum: int | None = None):
-    """An integer >= 1 (>= 0 with ``allow_zero``; >= ``minimum`` when given), at most ``maximum`` when given."""
-    low = minimum if minimum is not None else (0 if allow_zero else 1)
-
-    def convert(text: str) -> int:
-        try:
-            value = int(text)
-        except ValueError:
-            raise InputError(f"expected an integer, got {text!r}", field=flag) from None
-        if value < low or (maximum is not None and value > maximum):
-            bound = f">= {low}" + ("" if maximum is None else f" and <= {maximum}")
-            raise InputError(f"must be {bound}, got {value}", field=flag)
-        return value
-    return _argument_type(convert)
-
-
-def _float(flag: str, minimum: float | None = None, positive: bool = False, maximum: float | None = None):
-    """A finite float, at least ``minimum`` / at most ``maximum`` when given, above 0 when ``positive``."""
-    def convert(text: str) -> float:
-        try:
-            value = float(text)
-        except ValueError:
-            raise InputError(f"expected a number, got {text!r}", field=flag) from None
-        if (value != value or value in (float("inf"), float("-inf")) or (minimum is not None and value < minimum)
-                or (positive and value <= 0) or (maximum is not None and value > maximum)):
-            bound = " > 0" if positive else "" if minimum is None else f" >= {minimum:g}"
-            if maximum is not None:
-                bound += (" and" if bound else "") + f" <= {maximum:g}"
-            raise InputError(f"expected a finite number{bound}, got {text!r}", field=flag)
-        return value
-    return _argument_type(convert)
-
-
 def build_parser() -> argparse.ArgumentParser:
     """The ``senerf-fit`` argument parser (errors raise :class:`InputError`)."""
-    p = _Parser(prog=PROG, description="Few-shot NeRF with SE-NeRF self-training (K-Planes teacher/student).")
+    p = OneLineParser(prog=PROG, description="Few-shot NeRF with SE-NeRF self-training (K-Planes teacher/student).")
     p.add_argument("scene", nargs="?", help="scene folder (NeRF Synthetic / instant-ngp / LLFF)")
     g = p.add_argument_group("views")
-    g.add_argument("--views", type=_argument_type(parse_views),
+    g.add_argument("--views", type=argument_type(parse_views),
                    help="training view indices, e.g. 0,1,51 (into the train split)")
-    g.add_argument("--n-views", type=_positive_int("--n-views"), help="number of views (llff, random8)")
+    g.add_argument("--n-views", type=int_flag("--n-views"), help="number of views (llff, random8)")
     g.add_argument("--protocol", choices=_CLI_PROTOCOLS,
                    help="few-shot protocol (default: 'views' with --views, else extreme / llff by scene kind)")
-    g.add_argument("--downscale", type=_float("--downscale", 1.0),
+    g.add_argument("--downscale", type=float_flag("--downscale", 1.0),
                    help="image downscale factor (default 1; LLFF: 8, relative to full resolution)")
     t = p.add_argument_group("training")
     t.add_argument("--preset", choices=("fast", "balanced"), default="balanced")
-    t.add_argument("--steps", type=_positive_int("--steps"), help="training steps per iteration (overrides preset)")
-    t.add_argument("--batch-rays", type=_positive_int("--batch-rays"), help="rays per step (overrides preset)")
-    t.add_argument("--iterations", type=_positive_int("--iterations", allow_zero=True), default=None,
+    t.add_argument("--steps", type=int_flag("--steps"), help="training steps per iteration (overrides preset)")
+    t.add_argument("--batch-rays", type=int_flag("--batch-rays"), help="rays per step (overrides preset)")
+    t.add_argument("--iterations", type=int_flag("--iterations", allow_zero=True), default=None,
                    help="self-training iterations after the baseline (0 = baseline only; default: the "
                         "preset's: 3 for balanced, 1 for fast)")
     t.add_argument("--device", default="cpu", help="cpu or cuda")
-    t.add_argument("--seed", type=_positive_int("--seed", allow_zero=True, maximum=2**63 - 1), default=0)
+    t.add_argument("--seed", type=int_flag("--seed", allow_zero=True, maximum=2**63 - 1), default=0)
     m = p.add_argument_group("model overrides (default: chosen from the scene and printed)")
     m.add_argument("--field", choices=("kplanes", "nerf"))
-    m.add_argument("--resolution", type=_positive_int("--resolution", minimum=2), help="base plane resolution")
-    m.add_argument("--samples", type=_positive_int("--samples"), help="samples per ray")
-    m.add_argument("--hidden", type=_positive_int("--hidden"), help="width of the K-Planes MLPs (default 32)")
-    m.add_argument("--aabb", type=_float("--aabb", positive=True), help="half size of a cube AABB around the origin")
+    m.add_argument("--resolution", type=int_flag("--resolution", minimum=2), help="base plane resolution")
+    m.add_argument("--samples", type=int_flag("--samples"), help="samples per ray")
+    m.add_argument("--hidden", type=int_flag("--hidden"), help="width of the K-Planes MLPs (default 32)")
+    m.add_argument("--aabb", type=float_flag("--aabb", positive=True),
+                   help="half size of a cube AABB around the origin")
     m.add_argument("--background", choices=("random", "white", "black"), help="training background")
     m.add_argument("--no-view-dependence", action="store_true", help="colour ignores the view direction")
     m.add_argument("--no-occupancy", action="store_true", help="no occupancy grid")
@@ -135,19 +85,19 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--threshold", choices=("adaptive", "fixed", "unified"), default="adaptive")
     s.add_argument("--no-density-distill", action="store_true")
     s.add_argument("--no-prior", action="store_true")
-    s.add_argument("--empty-opacity", type=_float("--empty-opacity", 0.0, maximum=OPACITY_THRESHOLD_DEFAULT),
+    s.add_argument("--empty-opacity", type=float_flag("--empty-opacity", 0.0, maximum=OPACITY_THRESHOLD_DEFAULT),
                    default=None,
                    help="pseudo pixels the teacher renders with opacity below this are distilled as empty "
                         f"space (0: off, the paper's letter; default {EMPTY_OPACITY_DEFAULT:g}; at most the "
                         f"foreground threshold {OPACITY_THRESHOLD_DEFAULT:g})")
-    s.add_argument("--pseudo-range", type=_float("--pseudo-range", 0.0), default=None, metavar="DEG",
+    s.add_argument("--pseudo-range", type=float_flag("--pseudo-range", 0.0), default=None, metavar="DEG",
                    help="azimuth/elevation range of the first iteration's pseudo views around each input "
                         f"(default {PSEUDO_RANGE_DEFAULT:g}, the paper's)")
-    s.add_argument("--pseudo-range-step", type=_float("--pseudo-range-step", 0.0), default=None, metavar="DEG",
+    s.add_argument("--pseudo-range-step", type=float_flag("--pseudo-range-step", 0.0), default=None, metavar="DEG",
                    help=f"widening of that range per later iteration (default {PSEUDO_RANGE_STEP_DEFAULT:g})")
-    s.add_argument("--pseudo-views", type=_positive_int("--pseudo-views"), default=None, metavar="N",
+    s.add_argument("--pseudo-views", type=int_flag("--pseudo-views"), default=None, metavar="N",
                    help=f"pseudo views per input view and iteration (default {PSEUDO_VIEWS_DEFAULT})")
-    s.add_argument("--batch-empty", type=_positive_int("--batch-empty", allow_zero=True), default=None, metavar="N",
+    s.add_argument("--batch-empty", type=int_flag("--batch-empty", allow_zero=True), default=None, metavar="N",
                    help="empty-space pseudo rays per step drawn apart from the reliable surface rays (0: one "
                         f"shared pool; default {BATCH_EMPTY_DEFAULT})")
     s.add_argument("--student-grid", choices=("teacher", "student", "none"), default=None,

@@ -156,7 +156,8 @@ def test_an_out_that_cannot_be_created_is_refused_before_any_work(tiny_scene, tm
     (["--resolution", "1"], "argument --resolution: must be >= 2, got 1"),
     (["--resolution", "100000"], "--resolution: 100000 needs"),
     (["--seed", "99999999999999999999"], "argument --seed: must be >= 0 and <= 9223372036854775807"),
-    (["--downscale", "2"], "--downscale: the images are 8x8 at downscale 2; the evaluation (SSIM) needs at least 11x11"),
+    (["--downscale", "2"],
+     "--downscale: the images are 8x8 at downscale 2; the evaluation (SSIM) needs at least 11x11"),
     (["--reliability", "oracle", "--iterations", "1", "--features", "daisy"],  # protocol all: nothing held out
      "--reliability: --reliability oracle needs held-out views (neither training nor test)"),
 ])

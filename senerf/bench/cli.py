@@ -25,6 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from senerf.atomic import atomic_write_text, output_file, output_folder
+from senerf.cliargs import OneLineParser, float_flag, int_flag
 from senerf.errors import InputError
 
 from .execute import RunnerConfig
@@ -46,8 +47,11 @@ REPORT_END = "<!-- senerf-bench report: END -->"
 
 
 def build_parser() -> argparse.ArgumentParser:
-    """The argument parser (subcommands ``run``, ``summarize``, ``report``, ``plot``, ``angles``)."""
-    parser = argparse.ArgumentParser(prog="senerf-bench", description=__doc__.split("\n\n")[0])
+    """The argument parser (subcommands ``run``, ``summarize``, ``report``, ``plot``, ``angles``).
+
+    Errors raise :class:`InputError` (:class:`senerf.cliargs.OneLineParser`, inherited by the subcommands), so
+    that :func:`main` prints them as one line; numeric flags are checked here, naming the flag."""
+    parser = OneLineParser(prog="senerf-bench", description=__doc__.split("\n\n")[0])
     sub = parser.add_subparsers(dest="command", required=True)
 
     run = sub.add_parser("run", help="run the grid scenes x protocols x methods x presets x seeds (resumable)")
@@ -57,18 +61,21 @@ def build_parser() -> argparse.ArgumentParser:
                           "synthetic-random8@400 llff3@504x378")
     run.add_argument("--methods", nargs="+", default=["baseline", "senerf"], help=", ".join(METHODS))
     run.add_argument("--presets", nargs="+", default=["fast"], help=", ".join(PRESETS))
-    run.add_argument("--seeds", nargs="+", type=int, default=[0])
-    run.add_argument("--iterations", type=int, default=3, help="self-training rounds K (default 3)")
-    run.add_argument("--steps", type=int, default=None, help="override the preset's --steps")
+    run.add_argument("--seeds", nargs="+", type=int_flag("--seeds", allow_zero=True), default=[0])
+    run.add_argument("--iterations", type=int_flag("--iterations"), default=3,
+                     help="self-training rounds K (default 3)")
+    run.add_argument("--steps", type=int_flag("--steps"), default=None, help="override the preset's --steps")
     run.add_argument("--device", choices=["cpu", "cuda"], default="cpu")
     run.add_argument("--out", default="bench_out", help="output folder (results.jsonl, runs/)")
     run.add_argument("--results", default=None, help="results file (default OUT/results.jsonl)")
-    run.add_argument("--workers", type=int, default=1, help="concurrent local runs (default 1)")
-    run.add_argument("--threads", type=int, default=None,
+    run.add_argument("--workers", type=int_flag("--workers"), default=1, help="concurrent local runs (default 1)")
+    run.add_argument("--threads", type=int_flag("--threads"), default=None,
                      help="torch/OpenMP threads per run (default: usable cores // workers; Ray: --cpus-per-run)")
     run.add_argument("--ray-address", default=None, help="run on this Ray cluster ('auto', 'ray://h:10001')")
-    run.add_argument("--cpus-per-run", type=float, default=1.0, help="CPUs Ray reserves per run")
-    run.add_argument("--timeout", type=float, default=None, help="seconds per run before it is killed")
+    run.add_argument("--cpus-per-run", type=float_flag("--cpus-per-run", positive=True), default=1.0,
+                     help="CPUs Ray reserves per run")
+    run.add_argument("--timeout", type=float_flag("--timeout", positive=True), default=None,
+                     help="seconds per run before it is killed")
     run.add_argument("--fit-command", default=None,
                      help="program replacing senerf-fit (shell-quoted string; for tests and wrappers)")
     run.add_argument("--dry-run", action="store_true", help="print the pending fit commands, run nothing")
@@ -104,8 +111,8 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     """Entry point; returns the exit status."""
     argv = list(sys.argv[1:] if argv is None else argv)
-    args = build_parser().parse_args(argv)
     try:
+        args = build_parser().parse_args(argv)
         if args.command == "run":
             return _cmd_run(args, argv)
         if args.command == "summarize":
@@ -118,16 +125,15 @@ def main(argv: list[str] | None = None) -> int:
     except InputError as exc:
         print(f"senerf-bench: error: {exc}", file=sys.stderr)
         return 2
+    except SystemExit as exc:  # --help
+        return exc.code if isinstance(exc.code, int) else 0 if exc.code is None else 2
 
 
 def _cmd_run(args: argparse.Namespace, argv: list[str]) -> int:
-    if args.workers < 1:
-        raise InputError(f"must be >= 1, got {args.workers}", field="--workers")
-    if args.timeout is not None and not args.timeout > 0:
-        raise InputError(f"must be > 0 seconds, got {args.timeout}", field="--timeout")
-    if any(seed < 0 for seed in args.seeds):
-        raise InputError(f"must be >= 0, got {min(args.seeds)}", field="--seeds")
     out = output_folder(args.out, "--out")
+    results_flag = "--results" if args.results else "--out"
+    results = output_file(args.results if args.results else out / "results.jsonl", results_flag)
+    _read_results(results, results_flag)   # readable (a missing file is a fresh benchmark)
     for s in args.scenes:
         if not args.dry_run and not Path(s).is_dir():
             raise InputError("scene folder not found", file=s)
@@ -135,7 +141,6 @@ def _cmd_run(args: argparse.Namespace, argv: list[str]) -> int:
     specs = expand_specs([str(Path(s).resolve()) if Path(s).is_dir() else s for s in args.scenes],
                          args.protocols, args.methods, args.presets, args.seeds, args.iterations, args.device,
                          args.steps, check_scenes=check)
-    results = Path(args.results) if args.results else out / "results.jsonl"
     fit_command = tuple(shlex.split(args.fit_command)) if args.fit_command else None
     threads = args.threads
     if threads is None:   # one core per reserved CPU: concurrent fits must not oversubscribe a node
@@ -146,6 +151,7 @@ def _cmd_run(args: argparse.Namespace, argv: list[str]) -> int:
     if args.dry_run:
         print("\n".join(dry_run_lines(specs, results, cfg.runs_dir)))
         return 0
+    _prepare_run_outputs(out, results, results_flag)
     try:
         executor = make_executor(args.workers, args.ray_address, args.cpus_per_run)
     except ImportError as exc:
@@ -162,10 +168,48 @@ def _cmd_run(args: argparse.Namespace, argv: list[str]) -> int:
     return 1 if outcome.failed else 0
 
 
+def _prepare_run_outputs(out: Path, results: Path, results_flag: str) -> None:
+    """Create the runs folder and open the results file for appending before any fit starts, so that a
+    place that cannot be written (a file in the way, ``/proc``) is refused now, not after the first run."""
+    try:
+        results.parent.mkdir(parents=True, exist_ok=True)
+        with open(results, "a", encoding="utf-8"):
+            pass
+    except OSError as exc:
+        raise InputError(f"cannot write there ({_os_reason(exc, results)}); choose another {results_flag}",
+                         file=results) from None
+    try:
+        (out / "runs").mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise InputError(f"cannot write there ({_os_reason(exc, out)}); choose another --out", file=out) from None
+
+
+def _os_reason(exc: OSError, path: Path | str) -> str:
+    """``exc``'s reason, with the path it is about when that is a folder on the way to ``path``."""
+    reason = exc.strerror or str(exc)
+    if exc.filename is not None and Path(str(exc.filename)) in Path(path).parents:
+        reason += f": {exc.filename}"
+    return reason
+
+
+def _read_results(path: Path | str, flag: str | None = None) -> tuple[list[dict], int]:
+    """:func:`load_results`, with a file that cannot be read as an :class:`InputError`."""
+    try:
+        return load_results(path)
+    except OSError as exc:
+        hint = f"; choose another {flag}" if flag else ""
+        raise InputError(f"cannot read ({exc.strerror or exc}){hint}", file=path) from None
+
+
 def _load(path: str) -> list[dict]:
+    """The records of a results file: unparseable lines skipped with a warning, an error when no line
+    could be read (an empty file is an empty benchmark)."""
     if not Path(path).is_file():
         raise InputError("results file not found", file=path)
-    records, bad = load_results(path)
+    records, bad = _read_results(path)
+    if bad and not records:
+        raise InputError(f"no line could be read ({bad} unparseable line(s)); not a senerf-bench results file?",
+                         file=path)
     if bad:
         print(f"senerf-bench: warning: skipped {bad} unparseable line(s) in {path}", file=sys.stderr)
     return records
@@ -181,6 +225,7 @@ def _cmd_summarize(args: argparse.Namespace) -> int:
 
 def _cmd_report(args: argparse.Namespace, argv: list[str]) -> int:
     out = output_file(args.out, "--out") if args.out else None
+    into = output_file(args.into, "--into") if args.into else None
     text = make_report(_load(args.results), ["senerf-bench", *argv], title=args.title)
     for name in args.masks:
         try:
@@ -192,17 +237,26 @@ def _cmd_report(args: argparse.Namespace, argv: list[str]) -> int:
         except ValueError:
             raise InputError("not a `bench_selftrain.py masks` result", file=name) from None
         text = text.rstrip("\n") + "\n\n" + section
-    if args.into:
-        path = Path(args.into)
-        atomic_write_text(path, splice_report(_read_text(path), text, path))
-        print(f"updated the generated section of {path}")
+    spliced = splice_report(_read_text(into), text, into) if into is not None else None
+    # the new file first: it is the likelier to fail, and then nothing has been written
     if out is not None:
-        out.parent.mkdir(parents=True, exist_ok=True)
-        atomic_write_text(out, text + "\n")
+        _write_text(out, text + "\n", "--out")
         print(f"wrote {out}")
     else:
         print(text)
+    if into is not None:
+        _write_text(into, spliced, "--into")
+        print(f"updated the generated section of {into}")
     return 0
+
+
+def _write_text(path: Path, text: str, flag: str) -> None:
+    """:func:`atomic_write_text`, with a place that cannot be written as an :class:`InputError` naming
+    ``flag``."""
+    try:
+        atomic_write_text(path, text)
+    except OSError as exc:
+        raise InputError(f"cannot write there ({_os_reason(exc, path)}); choose another {flag}", file=path) from None
 
 
 def _read_text(path: Path) -> str:
@@ -233,6 +287,11 @@ def _cmd_plot(args: argparse.Namespace) -> int:
     if not aggs:
         raise InputError("no finished runs to plot", file=args.results)
     out = output_folder(args.out_dir, "--out-dir")
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise InputError(f"cannot write there ({_os_reason(exc, out)}); choose another --out-dir",
+                         file=out) from None
     fits = [f for f in teacher_dependence(records) if f.method == "senerf"]
     for scene, protocol in sorted({(a.scene, a.protocol) for a in aggs}):
         group = [a for a in aggs if a.scene == scene and a.protocol == protocol]
@@ -269,9 +328,13 @@ def _cmd_angles(args: argparse.Namespace) -> int:
         label = f"{r['method']} {preset_label(r)}" + (f" iter {r['iteration']}" if r["iteration"] else "")
         angles.setdefault(label, []).extend(a.tolist())
         psnr.setdefault(label, []).extend(p.tolist())
-    path = plot_psnr_vs_angle({k: np.asarray(v) for k, v in angles.items()},
-                              {k: np.asarray(v) for k, v in psnr.items()}, args.out,
-                              f"{name} {proto.name}: PSNR vs angle to the nearest training view (all seeds)")
+    try:
+        path = plot_psnr_vs_angle({k: np.asarray(v) for k, v in angles.items()},
+                                  {k: np.asarray(v) for k, v in psnr.items()}, args.out,
+                                  f"{name} {proto.name}: PSNR vs angle to the nearest training view (all seeds)")
+    except OSError as exc:
+        raise InputError(f"cannot write there ({_os_reason(exc, args.out)}); choose another --out",
+                         file=args.out) from None
     print(f"wrote {path}")
     return 0
 

@@ -139,7 +139,8 @@ def _ends_with_newline(path: Path) -> bool:
 
 
 def load_results(path: str | Path) -> tuple[list[dict], int]:
-    """All parseable lines of a results file, and the number of lines skipped as unparseable.
+    """All parseable lines of a results file, and the number of lines skipped as unparseable (not UTF-8,
+    not JSON, or not a results line).
 
     A missing file is an empty result (a fresh benchmark).
     """
@@ -147,14 +148,14 @@ def load_results(path: str | Path) -> tuple[list[dict], int]:
     if not path.exists():
         return [], 0
     records, bad = [], 0
-    with open(path, encoding="utf-8") as f:
+    with open(path, "rb") as f:
         for raw in f:
             raw = raw.strip()
             if not raw:
                 continue
             try:
-                rec = json.loads(raw)
-            except json.JSONDecodeError:
+                rec = json.loads(raw.decode("utf-8"))
+            except (UnicodeDecodeError, json.JSONDecodeError):
                 bad += 1
                 continue
             if isinstance(rec, dict) and "run_key" in rec:

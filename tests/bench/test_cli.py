@@ -90,10 +90,17 @@ def test_bad_input_exits_2(tmp_path, capsys):
     assert main(["run", "--scenes", str(tmp_path), "--protocols", "nope@1"]) == 2
     assert main(["summarize", str(tmp_path / "none.jsonl")]) == 2
     assert "error" in capsys.readouterr().err
-    # run flags out of range: one line naming the flag once, before anything runs
-    for flags, message in ((["--workers", "0"], "--workers: must be >= 1, got 0"),
-                           (["--timeout", "-5"], "--timeout: must be > 0 seconds, got -5.0"),
-                           (["--seeds", "0", "-1"], "--seeds: must be >= 0, got -1")):
+    # run flags out of range: one line naming the flag once (checked by argparse), before anything runs
+    for flags, message in ((["--workers", "0"], "argument --workers: must be >= 1, got 0"),
+                           (["--timeout", "-5"], "argument --timeout: expected a finite number > 0, got '-5'"),
+                           (["--seeds", "0", "-1"], "argument --seeds: must be >= 0, got -1"),
+                           (["--iterations", "-1"], "argument --iterations: must be >= 1, got -1"),
+                           (["--steps", "0"], "argument --steps: must be >= 1, got 0"),
+                           (["--threads", "0"], "argument --threads: must be >= 1, got 0"),
+                           (["--cpus-per-run", "-1"], "argument --cpus-per-run: expected a finite number > 0, "
+                                                      "got '-1'"),
+                           (["--cpus-per-run", "nan"], "argument --cpus-per-run: expected a finite number > 0, "
+                                                       "got 'nan'")):
         assert main(["run", "--scenes", str(tmp_path), "--out", str(tmp_path / "o"), *flags]) == 2
         assert capsys.readouterr().err.strip() == f"senerf-bench: error: {message}"
         assert not (tmp_path / "o").exists()
@@ -137,3 +144,88 @@ def test_report_paper_rows_per_protocol():
     assert "ours 504x378" in text and "paper 504x378." in text
     assert "`senerf-bench run --scenes fern`" in text and "abc" in text
     assert len({(r.family, r.scene, r.label) for r in PAPER_NUMBERS}) == len(PAPER_NUMBERS)
+
+
+def _one_error_line(capsys) -> str:
+    """The single ``senerf-bench: error:`` line on stderr (no traceback, no usage)."""
+    err = capsys.readouterr().err
+    assert len(err.strip().splitlines()) == 1 and "Traceback" not in err, err
+    assert err.startswith("senerf-bench: error: "), err
+    return err.strip()
+
+
+def test_argparse_errors_are_one_line(tmp_path, capsys):
+    # before: argparse printed its multi-line usage and exited through SystemExit
+    for argv, needle in ((["run"], "required: --scenes"), (["summarize"], "required: results"),
+                         (["bogus"], "invalid choice: 'bogus'"),
+                         (["run", "--scenes", "s", "--workers", "x"],
+                          "argument --workers: expected an integer, got 'x'"),
+                         (["report", "r.jsonl", "--nope"], "unrecognized arguments: --nope")):
+        assert main(argv) == 2, argv
+        assert needle in _one_error_line(capsys)
+    assert main(["--help"]) == 0 and "usage: senerf-bench" in capsys.readouterr().out
+
+
+def test_unreadable_results_file_is_an_error(tmp_path, capsys):
+    bad = tmp_path / "bad.jsonl"
+    bad.write_text("garbage\n{torn\n[1, 2]\n")
+    for command in (["summarize"], ["report"], ["plot"]):
+        assert main([*command, str(bad)]) == 2, command
+        assert f"{bad}: no line could be read (3 unparseable line(s))" in _one_error_line(capsys)
+    binary = tmp_path / "binary.jsonl"   # before: UnicodeDecodeError traceback
+    binary.write_bytes(b"\xd0\xff\x00\n\x89PNG\n")
+    assert main(["summarize", str(binary)]) == 2
+    assert "no line could be read (2 unparseable line(s))" in _one_error_line(capsys)
+    # some bad lines: a warning, the rest is summarized; an empty file is an empty benchmark
+    good = json.dumps({"run_key": "k", "status": "failed", "error": "x"})
+    bad.write_text(f"garbage\n{good}\n")
+    assert main(["summarize", str(bad)]) == 0
+    assert "warning: skipped 1 unparseable line(s)" in capsys.readouterr().err
+    (tmp_path / "empty.jsonl").write_text("")
+    assert main(["summarize", str(tmp_path / "empty.jsonl")]) == 0
+
+
+def test_output_paths_that_cannot_be_written(blender_scene, fake_fit_command, tmp_path, capsys):
+    """A file in the way, a folder where a file goes, a place the kernel refuses (``/proc``): one line
+    naming the flag, exit 2, nothing written (before: FileExistsError / IsADirectoryError / PermissionError
+    tracebacks, exit 1)."""
+    a_file = tmp_path / "afile"
+    a_file.write_text("mine")
+    a_dir = tmp_path / "adir"
+    a_dir.mkdir()
+    results = tmp_path / "results.jsonl"
+    results.write_text("")
+    doc = tmp_path / "doc.md"
+    doc.write_text("x\n<!-- senerf-bench report: BEGIN (generated, do not edit by hand) -->\n"
+                   "<!-- senerf-bench report: END -->\n")
+    before = doc.read_text()
+    for out in (a_file / "x.md", "/proc/senerf-bench-test/x.md", "/proc/x.md"):
+        assert main(["report", str(results), "--into", str(doc), "--out", str(out)]) == 2, out
+        assert "--out" in _one_error_line(capsys)
+        assert doc.read_text() == before
+    assert main(["report", str(results), "--into", str(a_dir)]) == 2
+    assert "--into" in _one_error_line(capsys)
+    finished = tmp_path / "finished.jsonl"
+    finished.write_text(json.dumps({"run_key": "k", "status": "ok", "attempt": "a", "scene": "s", "protocol": "p",
+                                    "method": "baseline", "preset": "fast", "seed": 0, "iterations": 0,
+                                    "iteration": 0, "psnr": 20.0, "ssim": 0.5, "lpips": "unavailable",
+                                    "avg": "unavailable", "seconds": 1.0, "seconds_cumulative": 1.0,
+                                    "peak_memory_mib": 100.0}) + "\n")
+    for out_dir in (a_file / "x", "/proc/senerf-bench-test"):
+        assert main(["plot", str(finished), "--out-dir", str(out_dir)]) == 2, out_dir
+        assert "--out-dir" in _one_error_line(capsys)
+
+    run = ["run", "--scenes", str(blender_scene), "--methods", "baseline", "--fit-command",
+           shlex.join(fake_fit_command)]
+    bench = tmp_path / "bench"
+    for flags, flag in ((["--results", str(a_dir), "--dry-run"], "--results"),
+                        (["--results", str(a_dir)], "--results"),
+                        (["--results", str(a_file / "r.jsonl")], "--results"),
+                        (["--results", "/proc/senerf-bench-test.jsonl"], "--results"),
+                        (["--out", str(a_file / "o")], "--out"),
+                        (["--out", "/proc/senerf-bench-test"], "--out")):
+        argv = [*run, "--out", str(bench), *flags] if "--out" not in flags else [*run, *flags]
+        assert main(argv) == 2, flags
+        assert flag in _one_error_line(capsys), flags
+        assert not list(bench.glob("runs/*")), flags      # no fit ran
+    assert a_file.read_text() == "mine" and not any(a_dir.iterdir())

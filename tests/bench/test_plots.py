@@ -60,7 +60,7 @@ def test_angle_plot_colours_are_distinct(n):
     assert len(rgba) == n and len(set(rgba)) == n
 
 
-def test_angles_command_on_lego(lego_dir, tmp_path):
+def test_angles_command_on_lego(lego_dir, tmp_path, capsys):
     from senerf.bench.cli import main
     from senerf.bench.plots import line_view_angles
     from senerf.bench.results import append_lines
@@ -82,3 +82,9 @@ def test_angles_command_on_lego(lego_dir, tmp_path):
     assert main(["angles", str(tmp_path / "r.jsonl"), "--scene", str(lego_dir), "--protocol",
                  "synthetic-extreme3@100", "--out", str(tmp_path / "none.png"), "--methods", "baseline"]) == 2
     assert not (tmp_path / "none.png").exists()
+    # a place the kernel refuses: one line naming --out, exit 2 (before: a traceback from savefig, exit 1)
+    capsys.readouterr()
+    assert main(["angles", str(tmp_path / "r.jsonl"), "--scene", str(lego_dir), "--protocol",
+                 "synthetic-extreme3@100", "--out", "/proc/senerf-bench-test.png"]) == 2
+    err = capsys.readouterr().err
+    assert len(err.strip().splitlines()) == 1 and "--out" in err and "Traceback" not in err

@@ -1,0 +1,65 @@
+"""Command-line argument helpers shared by ``senerf-fit`` and ``senerf-bench``.
+
+Every problem is an :class:`senerf.errors.InputError` whose message names the flag, so both commands
+print it as one ``<prog>: error: argument --flag: <problem>`` line and exit with status 2.
+"""
+
+from __future__ import annotations
+
+import argparse
+
+from senerf.errors import InputError
+
+__all__ = ["OneLineParser", "argument_type", "int_flag", "float_flag"]
+
+
+class OneLineParser(argparse.ArgumentParser):
+    """argparse that raises :class:`InputError` instead of printing usage and exiting."""
+
+    def error(self, message: str):  # noqa: D401 - argparse hook
+        raise InputError(message)
+
+
+def argument_type(convert):
+    """An argparse ``type`` from a converter raising :class:`InputError`: argparse reports a ValueError as
+    "invalid <function> value", so the problem is handed over as an ``ArgumentTypeError`` (argparse then
+    writes ``argument --flag: <problem>``)."""
+    def checked(text: str):
+        try:
+            return convert(text)
+        except InputError as exc:
+            raise argparse.ArgumentTypeError(exc.problem) from None
+    return checked
+
+
+def int_flag(flag: str, allow_zero: bool = False, minimum: int | None = None, maximum: int | None = None):
+    """An integer >= 1 (>= 0 with ``allow_zero``; >= ``minimum`` when given), at most ``maximum`` when given."""
+    low = minimum if minimum is not None else (0 if allow_zero else 1)
+
+    def convert(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            raise InputError(f"expected an integer, got {text!r}", field=flag) from None
+        if value < low or (maximum is not None and value > maximum):
+            bound = f">= {low}" + ("" if maximum is None else f" and <= {maximum}")
+            raise InputError(f"must be {bound}, got {value}", field=flag)
+        return value
+    return argument_type(convert)
+
+
+def float_flag(flag: str, minimum: float | None = None, positive: bool = False, maximum: float | None = None):
+    """A finite float, at least ``minimum`` / at most ``maximum`` when given, above 0 when ``positive``."""
+    def convert(text: str) -> float:
+        try:
+            value = float(text)
+        except ValueError:
+            raise InputError(f"expected a number, got {text!r}", field=flag) from None
+        if (value != value or value in (float("inf"), float("-inf")) or (minimum is not None and value < minimum)
+                or (positive and value <= 0) or (maximum is not None and value > maximum)):
+            bound = " > 0" if positive else "" if minimum is None else f" >= {minimum:g}"
+            if maximum is not None:
+                bound += (" and" if bound else "") + f" <= {maximum:g}"
+            raise InputError(f"expected a finite number{bound}, got {text!r}", field=flag)
+        return value
+    return argument_type(convert)
