@@ -11,6 +11,12 @@ from senerf.bench.cli import main
 from senerf.bench.report import PAPER_NUMBERS, make_report
 from senerf.bench.results import load_results
 
+#: One finished baseline row of a results file, as ``senerf-bench run`` appends it.
+_FINISHED_LINE = json.dumps({"run_key": "k", "status": "ok", "attempt": "a", "scene": "s", "protocol": "p",
+                             "method": "baseline", "preset": "fast", "seed": 0, "iterations": 0, "iteration": 0,
+                             "psnr": 20.0, "ssim": 0.5, "lpips": "unavailable", "avg": "unavailable",
+                             "seconds": 1.0, "seconds_cumulative": 1.0, "peak_memory_mib": 100.0}) + "\n"
+
 
 def _run_args(scene, out, fit, *extra):
     return ["run", "--scenes", str(scene), "--protocols", "synthetic-extreme3@100", "--methods", "baseline",
@@ -111,11 +117,7 @@ def test_bad_input_exits_2(tmp_path, capsys):
     assert capsys.readouterr().err.strip() == (f"senerf-bench: error: {a_file}: exists and is not a folder; "
                                                "choose another --out")
     results = tmp_path / "results.jsonl"
-    results.write_text(json.dumps({"run_key": "k", "status": "ok", "attempt": "a", "scene": "s", "protocol": "p",
-                                   "method": "baseline", "preset": "fast", "seed": 0, "iterations": 0,
-                                   "iteration": 0, "psnr": 20.0, "ssim": 0.5, "lpips": "unavailable",
-                                   "avg": "unavailable", "seconds": 1.0, "seconds_cumulative": 1.0,
-                                   "peak_memory_mib": 100.0}) + "\n")
+    results.write_text(_FINISHED_LINE)
     assert main(["plot", str(results), "--out-dir", str(a_file)]) == 2
     assert "exists and is not a folder; choose another --out-dir" in capsys.readouterr().err
     assert a_file.read_text() == "mine"
@@ -206,11 +208,7 @@ def test_output_paths_that_cannot_be_written(blender_scene, fake_fit_command, tm
     assert main(["report", str(results), "--into", str(a_dir)]) == 2
     assert "--into" in _one_error_line(capsys)
     finished = tmp_path / "finished.jsonl"
-    finished.write_text(json.dumps({"run_key": "k", "status": "ok", "attempt": "a", "scene": "s", "protocol": "p",
-                                    "method": "baseline", "preset": "fast", "seed": 0, "iterations": 0,
-                                    "iteration": 0, "psnr": 20.0, "ssim": 0.5, "lpips": "unavailable",
-                                    "avg": "unavailable", "seconds": 1.0, "seconds_cumulative": 1.0,
-                                    "peak_memory_mib": 100.0}) + "\n")
+    finished.write_text(_FINISHED_LINE)
     for out_dir in (a_file / "x", "/proc/senerf-bench-test"):
         assert main(["plot", str(finished), "--out-dir", str(out_dir)]) == 2, out_dir
         assert "--out-dir" in _one_error_line(capsys)
