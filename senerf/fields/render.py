@@ -32,8 +32,9 @@ def _check(sigma, rgb, t, t_far):
 
 
 def _background(background, rgb_out):
+    """``background`` as a tensor like ``rgb_out``, or None (black: nothing is added)."""
     if background is None:
-        return rgb_out
+        return None
     bg = torch.as_tensor(background, dtype=rgb_out.dtype, device=rgb_out.device)
     if bg.shape not in ((3,), tuple(rgb_out.shape)):
         raise ValueError(f"background: expected shape (3,) or {tuple(rgb_out.shape)}, got {tuple(bg.shape)}")

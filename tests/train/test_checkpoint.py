@@ -73,3 +73,14 @@ def test_missing_or_corrupt_checkpoint_is_input_error(tmp_path):
         load_checkpoint(tmp_path / "junk.pt")
     atomic_write_text(tmp_path / "t.txt", "hello")
     assert (tmp_path / "t.txt").read_text() == "hello"
+
+
+def test_only_dicts_are_saved_or_loaded(tmp_path):
+    # Catches: save_checkpoint accepting a non-dict state (the trainer indexes it like a dict on resume), and
+    # load_checkpoint returning whatever plain data the file holds instead of refusing a non-dict.
+    with pytest.raises(ValueError, match="must be a dict"):
+        save_checkpoint(tmp_path / "a.pt", [1, 2])
+    assert not (tmp_path / "a.pt").exists()
+    torch.save(torch.zeros(3), tmp_path / "t.pt")          # plain data, loads with weights_only=True
+    with pytest.raises(InputError, match="expected a dict"):
+        load_checkpoint(tmp_path / "t.pt")

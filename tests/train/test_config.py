@@ -114,3 +114,82 @@ def test_docstring_examples_run():
 
     result = doctest.testmod(config)
     assert result.attempted >= 2 and result.failed == 0
+
+
+def _ring(center, radius, n=6):
+    return np.stack([pose_from_spherical(a, e, radius, center=center)
+                     for a, e in zip(np.linspace(0, 300, n), np.linspace(10, 60, n))])
+
+
+def test_camera_aabb_half_size_by_hand():
+    # Catches: a margin other than 1.05, the full field of view instead of its half, no clamp keeping the
+    # cameras outside the box.  Six cameras at distance 4 around (1, 2, 3), all looking at it:
+    # fov 40 deg: half = 4 tan(20 deg) 1.05 = 4 * 0.36397023 * 1.05 = 1.5286750;
+    # fov 120 deg: 4 tan(60 deg) 1.05 = 7.27 > 0.95 * 4 / sqrt(3) = 2.1939310, which wins.
+    from senerf.train import camera_aabb
+
+    c = np.array([1.0, 2.0, 3.0])
+    box, dist, centre = camera_aabb(_ring(c, 4.0), 40.0)
+    np.testing.assert_allclose(centre, c, atol=1e-9)
+    assert dist == pytest.approx(4.0, rel=1e-9)
+    np.testing.assert_allclose(box, [c - 1.5286750, c + 1.5286750], atol=1e-6)
+    box, _, _ = camera_aabb(_ring(c, 4.0), 120.0)
+    np.testing.assert_allclose(box, [c - 2.1939310, c + 2.1939310], atol=1e-6)
+
+
+def _scene_wh(width, height, radius=4.031, kind="object"):
+    intr = Intrinsics.from_fov(LEGO_FOV_DEG, width, height)
+    n = 6
+    if kind == "object":
+        c2w = _ring(np.zeros(3), radius, n)
+    else:
+        c2w = np.tile(np.eye(4), (n, 1, 1))
+        c2w[:, 0, 3] = np.linspace(-0.1, 0.1, n)
+    return Scene(name="t", root=Path("."), rgb=np.zeros((n, height, width, 3), np.float32), alpha=None,
+                 intrinsics=intr, intrinsics_all=(intr,) * n, c2w=c2w, splits={"train": np.arange(n)}, kind=kind,
+                 near=1.0 if kind != "object" else None, far=None, image_paths=tuple(Path(f"{i}.png") for i in range(n)))
+
+
+@pytest.mark.parametrize("width,kind,expect", [
+    (180, "object", 96),           # box ~1.05 W = 189 px wide: 189 / 2 / 8 = 11.81 -> 12 -> 96
+    (400, "object", 128),          # 420 / 16 = 26.25 -> 208, capped at 128
+    (20, "object", 32),            # 21 / 16 = 1.3 -> 8, raised to 32
+    (180, "forward_facing", 88),   # NDC: max(H, W) = 180: 180 / 16 = 11.25 -> 11 -> 88
+])
+def test_plane_resolution_is_half_the_box_pixels_rounded_to_8(width, kind, expect):
+    # Catches: the resolution floored instead of rounded (88 for 189 px), the /2 dropped, the [32, 128] clamp
+    # widened.  The object box is 2 d tan(fov/2) 1.05 wide at the camera distance d, so with
+    # fx = W / (2 tan(fov/2)) it covers 1.05 W pixels.
+    model = choose_model(_scene_wh(width, width, kind=kind), np.arange(6), echo=lambda s: None)
+    assert model.resolution == expect
+
+
+def test_box_uses_the_narrower_field_of_view():
+    # Catches: camera_aabb given the wider (horizontal) field of view of a landscape image.  30 x 20 image,
+    # square pixels: tan(fov_y / 2) = 10 / f with f = 15 / tan(fov_x / 2); half = d tan(fov_y / 2) 1.05.
+    scene = _scene_wh(30, 20)
+    model = choose_model(scene, np.arange(6), echo=lambda s: None)
+    f = scene.intrinsics.fy
+    half = 4.031 * (10.0 / f) * 1.05
+    assert model.aabb[1][0] - model.aabb[0][0] == pytest.approx(2 * half, abs=2.5e-3)
+
+
+def test_small_box_gets_a_positive_density_shift_of_minus_log_width():
+    # Catches: the small-box density shift with the wrong sign.  A box s < 1 unit wide starts 1/s times
+    # denser per unit length, so the shift is -ln(s) > 0 (cameras at 0.2: s = 2 * 0.2 tan(fov/2) 1.05 = 0.151).
+    model = choose_model(_scene_wh(20, 20, radius=0.2), np.arange(6), echo=lambda s: None)
+    width = model.aabb[1][0] - model.aabb[0][0]
+    assert 0.1 < width < 0.2
+    assert model.density_shift == pytest.approx(-math.log(width), rel=1e-9)
+    assert choose_model(_scene(), np.arange(6), echo=lambda s: None).density_shift == 0.0
+
+
+def test_build_field_anneals_nerf_over_a_quarter_of_the_steps():
+    # Catches: build_field giving NeRF an annealing length other than steps // 4 (400 steps -> 100).
+    from senerf.train import build_field
+
+    model = ModelConfig(field="nerf", aabb=((-1, -1, -1), (1, 1, 1)))
+    field = build_field(model, seed=0, steps=400)
+    assert field.anneal_steps == 100
+    # step 50 of 100 with 10 bands: eta = 10 * 50 / 100 = 5 -> bands 0..4 on, 5..9 off
+    np.testing.assert_allclose(field.set_progress(50).numpy(), [1.0] * 5 + [0.0] * 5, atol=1e-7)

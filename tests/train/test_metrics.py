@@ -65,3 +65,16 @@ def test_ssim_rejects_mismatched_or_tiny_images():
     with pytest.raises(ValueError, match="at least 11x11"):
         ssim(np.zeros((10, 12, 3)), np.zeros((10, 12, 3)))
     assert ssim(np.full((11, 11, 3), 0.5), np.full((11, 11, 3), 0.5)) == pytest.approx(1.0)
+
+
+def test_psnr_and_ssim_honour_data_range():
+    # Catches: PSNR with data_range instead of data_range^2 in the numerator, SSIM ignoring data_range
+    # (skimage's C1, C2 scale with it).  Images in [0, 255] with data_range 255 score exactly as the same
+    # images in [0, 1] with data_range 1: PSNR of a 0.1 (25.5) offset = 10 log10(1 / 0.01) = 20 dB.
+    rng = np.random.default_rng(2)
+    a = rng.random((16, 16, 3))
+    b = np.clip(a + rng.normal(0, 0.05, a.shape), 0, 1)
+    assert psnr(255 * a, 255 * (a + 0.1), data_range=255.0) == pytest.approx(20.0, abs=1e-9)
+    assert psnr(255 * a, 255 * b, data_range=255.0) == pytest.approx(psnr(a, b), abs=1e-9)
+    assert ssim(255 * a, 255 * b, data_range=255.0) == pytest.approx(ssim(a, b), abs=1e-9)
+    assert ssim(255 * a, 255 * b, data_range=255.0) == pytest.approx(_ssim_reference(a, b), abs=1e-6)
