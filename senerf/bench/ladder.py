@@ -28,7 +28,7 @@ __all__ = ["Rung", "preset_ladder", "paired_gain_p_value", "ladder_markdown", "L
            "Contrast", "method_contrasts", "contrasts_markdown", "TeacherFit", "teacher_dependence",
            "teacher_dependence_markdown"]
 
-LADDER_ALPHA = 0.1
+LADDER_ALPHA = 0.05
 LADDER_MIN_SEEDS = 3
 
 
@@ -120,7 +120,7 @@ def preset_ladder(records: list[dict], alpha: float = LADDER_ALPHA,
                                 float(np.mean([a[s]["seconds_cumulative"] for s in seeds])) if seeds else math.nan,
                                 float(np.mean([b[s]["seconds_cumulative"] for s in seeds])) if seeds else math.nan,
                                 Stat.of(diffs), p,
-                                measurable=p is not None and len(seeds) >= min_seeds and p > alpha))
+                                measurable=p is not None and len(seeds) >= min_seeds and p < alpha))
     return out
 
 
