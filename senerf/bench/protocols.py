@@ -25,6 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
+from senerf.data.fewshot import EXTREME_VIEWS, INFONERF4_VIEWS  # one copy of REFERENCE.md section 5's lists
 from senerf.errors import InputError
 
 __all__ = [
@@ -41,14 +42,6 @@ __all__ = [
     "scene_kind",
     "native_size",
 ]
-
-#: Extreme 3-view lists, indices into the Blender train split (REFERENCE.md section 5).
-EXTREME_VIEWS: dict[str, tuple[int, ...]] = {
-    "chair": (26, 31, 32), "drums": (3, 9, 14), "ficus": (12, 36, 56), "hotdog": (31, 33, 48),
-    "lego": (0, 1, 51), "materials": (47, 63, 73), "ship": (36, 55, 66), "mic": (35, 65, 82),
-}
-#: InfoNeRF's 4-view list.
-INFONERF4_VIEWS: tuple[int, ...] = (26, 86, 2, 55)
 
 _SYNTHETIC_SIDE = 800            # NeRF Synthetic images are 800x800
 _LLFF_SIZE = (4032, 3024)        # LLFF full resolution (W, H)
