@@ -28,7 +28,7 @@ import warnings
 from pathlib import Path
 
 from senerf import __version__
-from senerf.cliargs import OneLineParser, argument_type, float_flag, int_flag
+from senerf.cliargs import SEED_MAX, OneLineParser, argument_type, float_flag, int_flag
 from senerf.errors import InputError
 
 __all__ = ["main", "build_parser", "parse_views"]
@@ -69,7 +69,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="self-training iterations after the baseline (0 = baseline only; default: the "
                         "preset's: 3 for balanced, 1 for fast)")
     t.add_argument("--device", default="cpu", help="cpu or cuda")
-    t.add_argument("--seed", type=int_flag("--seed", allow_zero=True, maximum=2**63 - 1), default=0)
+    t.add_argument("--seed", type=int_flag("--seed", allow_zero=True, maximum=SEED_MAX), default=0)
     m = p.add_argument_group("model overrides (default: chosen from the scene and printed)")
     m.add_argument("--field", choices=("kplanes", "nerf"))
     m.add_argument("--resolution", type=int_flag("--resolution", minimum=2), help="base plane resolution")
@@ -167,7 +167,8 @@ def _model_overrides(args) -> dict:
 
 def _check_model_fits(model) -> None:
     """:class:`InputError` when the field's feature planes (with their gradients and Adam's two moments:
-    4 copies) would not fit in half of this machine's memory: refused before anything is written."""
+    4 copies) would not fit in half of this machine's host memory (also with ``--device cuda``, where the
+    scene and the renders live on the host): refused before anything is written."""
     if model.field != "kplanes":
         return
     from senerf.fields.interp import plane_layout
@@ -323,7 +324,7 @@ def _run(args, argv) -> int:
         except ImportError:
             raise InputError("--demo is not available in this build (senerf.demo.run_demo is missing)",
                              field="--demo") from None
-        return int(run_demo(args) or 0)
+        return int(run_demo(args, argv[1:]) or 0)
     if not args.scene:
         raise InputError("a SCENE_DIR is required (or --demo)", field="SCENE_DIR")
     device = _check_device(args.device)

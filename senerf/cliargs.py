@@ -10,7 +10,10 @@ import argparse
 
 from senerf.errors import InputError
 
-__all__ = ["OneLineParser", "argument_type", "int_flag", "float_flag"]
+__all__ = ["OneLineParser", "argument_type", "int_flag", "float_flag", "SEED_MAX"]
+
+#: Largest seed either command accepts (torch generators take a signed 64-bit seed).
+SEED_MAX = 2**63 - 1
 
 
 class OneLineParser(argparse.ArgumentParser):

@@ -58,14 +58,25 @@ def ensure_demo_scene(scene_dir: Path, seed: int = 0) -> Path:
     return scene_dir
 
 
-def refuse_ignored_options(args) -> None:
+def refuse_ignored_options(args, argv: list[str] | None = None) -> None:
     """:class:`InputError` naming the first option given with ``--demo`` that the demo does not use (the
-    demo chooses its scene, views, preset and iterations); options left at their defaults pass."""
+    demo chooses its scene, views, preset and iterations).
+
+    With ``argv`` (the command's arguments) every option given counts, also one given at its default value
+    (``--preset balanced``); without it, only values that differ from the defaults can be seen.
+    """
+    import argparse
+
     from senerf.cli import build_parser
 
-    defaults = vars(build_parser().parse_args([]))
+    parser = build_parser()
+    defaults = vars(parser.parse_args([]))
+    if argv is not None:  # parse again with no defaults: what is in the namespace was given
+        for action in parser._actions:  # argparse's set_defaults would also store the marker as a value
+            action.default = argparse.SUPPRESS
+        args = parser.parse_args(argv)
     for name, value in vars(args).items():
-        if name not in DEMO_OPTIONS and value != defaults.get(name):
+        if name not in DEMO_OPTIONS and (argv is not None or value != defaults.get(name)):
             flag = "SCENE_DIR" if name == "scene" else "--" + name.replace("_", "-")
             raise InputError(f"--demo chooses its own scene, views, preset and iterations; drop {flag} or fit a "
                              "scene folder without --demo", field=flag)
@@ -76,7 +87,7 @@ def _check_demo_folder(out: Path, overwrite: bool) -> None:
     beside them), and always one whose ``demo_scene`` the demo did not write."""
     if not out.is_dir():
         return
-    names = {p.name for p in out.iterdir()}
+    names = {p.name for p in out.iterdir() if not p.name.startswith(".")}  # .scene-* temporaries, .DS_Store
     scene = out / "demo_scene"
     if scene.exists() and not (scene / "procedural.json").is_file():
         raise InputError("holds a demo_scene that senerf-fit --demo did not write; choose another --out", file=out)
@@ -86,8 +97,8 @@ def _check_demo_folder(out: Path, overwrite: bool) -> None:
                          "--overwrite to put the demo beside, or another --out", file=out)
 
 
-def run_demo(args) -> int:
-    """Run the demo for parsed ``senerf-fit`` arguments.
+def run_demo(args, argv: list[str] | None = None) -> int:
+    """Run the demo for parsed ``senerf-fit`` arguments (``argv``: the arguments they were parsed from).
 
     Uses ``--out``, ``--seed``, ``--device``, ``--quiet``, ``--overwrite``, and ``--steps`` /
     ``--batch-rays`` when given (they override the preset); everything else is the demo's own.
@@ -95,7 +106,7 @@ def run_demo(args) -> int:
     from senerf.cli import main
     from senerf.procedural import DEMO_FEWSHOT_VIEWS
 
-    refuse_ignored_options(args)
+    refuse_ignored_options(args, argv)
     out = output_folder(args.out if args.out is not None else Path("runs") / "demo", "--out")
     _check_demo_folder(out, args.overwrite)
     scene_dir = ensure_demo_scene(out / "demo_scene", seed=args.seed)

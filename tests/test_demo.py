@@ -53,7 +53,9 @@ def test_demo_refuses_options_it_would_ignore_and_a_users_folder(tmp_path, capsy
     user.mkdir()
     (user / "notes.txt").write_text("mine")
     for extra, flag in ((["--iterations", "0"], "--iterations"), (["--views", "5,6"], "--views"),
-                        (["--preset", "fast"], "--preset"), ([str(tmp_path)], "SCENE_DIR")):
+                        (["--preset", "fast"], "--preset"), ([str(tmp_path)], "SCENE_DIR"),
+                        (["--preset", "balanced"], "--preset"),            # the default, given: still ignored
+                        (["--threshold", "adaptive"], "--threshold")):
         assert main(["--demo", "--out", str(tmp_path / "d"), "--quiet", *extra]) == 2
         (line,) = capsys.readouterr().err.strip().splitlines()
         assert line.startswith(f"senerf-fit: error: {flag}: --demo chooses its own") and f"drop {flag}" in line
@@ -65,3 +67,10 @@ def test_demo_refuses_options_it_would_ignore_and_a_users_folder(tmp_path, capsy
     (line,) = capsys.readouterr().err.strip().splitlines()
     assert "holds a demo_scene that senerf-fit --demo did not write" in line
     assert sorted(p.name for p in user.iterdir()) == ["demo_scene", "notes.txt"] and not (tmp_path / "d").exists()
+    # hidden leftovers (a killed scene build's .scene-* folder, .DS_Store) do not make a folder foreign
+    from senerf.demo import _check_demo_folder
+
+    leftovers = tmp_path / "demo_out"
+    (leftovers / ".scene-abc").mkdir(parents=True)
+    (leftovers / ".DS_Store").write_text("")
+    _check_demo_folder(leftovers, overwrite=False)

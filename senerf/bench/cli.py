@@ -25,7 +25,8 @@ from pathlib import Path
 import numpy as np
 
 from senerf.atomic import atomic_write_text, output_file, output_folder
-from senerf.cliargs import OneLineParser, float_flag, int_flag
+from senerf.cliargs import SEED_MAX, OneLineParser, float_flag, int_flag
+from senerf.data.load import scene_root
 from senerf.errors import InputError
 
 from .execute import RunnerConfig
@@ -61,7 +62,7 @@ def build_parser() -> argparse.ArgumentParser:
                           "synthetic-random8@400 llff3@504x378")
     run.add_argument("--methods", nargs="+", default=["baseline", "senerf"], help=", ".join(METHODS))
     run.add_argument("--presets", nargs="+", default=["fast"], help=", ".join(PRESETS))
-    run.add_argument("--seeds", nargs="+", type=int_flag("--seeds", allow_zero=True), default=[0])
+    run.add_argument("--seeds", nargs="+", type=int_flag("--seeds", allow_zero=True, maximum=SEED_MAX), default=[0])
     run.add_argument("--iterations", type=int_flag("--iterations"), default=3,
                      help="self-training rounds K (default 3)")
     run.add_argument("--steps", type=int_flag("--steps"), default=None, help="override the preset's --steps")
@@ -134,6 +135,7 @@ def _cmd_run(args: argparse.Namespace, argv: list[str]) -> int:
     results_flag = "--results" if args.results else "--out"
     results = output_file(args.results if args.results else out / "results.jsonl", results_flag)
     _read_results(results, results_flag)   # readable (a missing file is a fresh benchmark)
+    args.scenes = [str(scene_root(s)) for s in args.scenes]   # a scene's marker file names its folder
     for s in args.scenes:
         if not args.dry_run and not Path(s).is_dir():
             raise InputError("scene folder not found", file=s)
@@ -313,7 +315,7 @@ def _cmd_angles(args: argparse.Namespace) -> int:
     output_file(args.out, "--out")
     proto = parse_protocol(args.protocol)
     scene = load_scene(args.scene, downscale=proto.downscale)
-    name = Path(args.scene).name
+    name = scene.name
     # baselines at iteration 0, self-training runs at their last iteration (their iteration 0 is a baseline)
     lines = [r for r in final_ok_lines(_load(args.results)) if r["scene"] == name and r["protocol"] == proto.name
              and (args.preset is None or r.get("preset") == args.preset)

@@ -137,7 +137,7 @@ def _build(root: Path, entries: list, downscale: float, splits: dict) -> Scene:
     intr = tuple(_intrinsics(e["params"], h0, w0, e["file"]).resized(w, h) for e in entries)
     c2w = opengl_to_opencv(np.stack([e["c2w_gl"] for e in entries]))
     return Scene(
-        name=root.name,
+        name=root.resolve().name,  # "." (a relative marker file or the current folder) has no name
         root=root,
         rgb=rgb,
         alpha=alpha,

@@ -198,7 +198,7 @@ def load_llff(root: Path, downscale: float = 1.0, bd_factor: float | None = 0.75
     intr = tuple(Intrinsics(f, f, 0.5 * full_w, 0.5 * full_h, full_w, full_h).resized(w, h) for f in hwf[:, 2])
     idx = np.arange(n)
     return Scene(
-        name=root.name,
+        name=root.resolve().name,
         root=root,
         rgb=rgb,
         alpha=alpha,

@@ -43,7 +43,6 @@ def scene_root(path) -> Path:
     return path.parent if path.is_file() and path.name in _MARKER_NAMES else path
 
 
-
 def detect_format(root) -> str:
     """``'blender'``, ``'ngp'`` or ``'llff'`` for a scene folder; ``InputError`` when it matches none."""
     root = Path(root)

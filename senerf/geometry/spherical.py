@@ -323,8 +323,9 @@ def nearest_view_angles(train_c2w: np.ndarray, test_c2w: np.ndarray,
         c = np.asarray(center, np.float64).reshape(3)
         d_tr, d_te = train_c2w[:, :3, 3] - c, test_c2w[:, :3, 3] - c
     for name, d in (("train_c2w", d_tr), ("test_c2w", d_te)):
-        unit, norm = unit_and_norm(d)
-        ok = np.isfinite(d).all(axis=-1) & (norm > 0)
+        finite = np.isfinite(d).all(axis=-1)
+        unit, norm = unit_and_norm(np.where(finite[:, None], d, 0.0))  # no inf / inf warnings
+        ok = finite & (norm > 0)
         if not ok.all():
             bad = int(np.flatnonzero(~ok)[0])
             what = "a camera centre at center" if center is not None else "a zero optical axis"

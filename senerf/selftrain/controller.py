@@ -187,7 +187,7 @@ class PseudoLabels:
     prior: np.ndarray
     neighbour: np.ndarray
     empty: np.ndarray
-    intrinsics: object
+    intrinsics: "geometry.Intrinsics | tuple[geometry.Intrinsics, ...]"
 
     def __post_init__(self) -> None:
         if self.empty.shape != self.weights.shape or self.empty.dtype != bool:

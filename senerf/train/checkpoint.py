@@ -41,7 +41,7 @@ def load_checkpoint(path: str | Path, map_location: str | torch.device = "cpu") 
         # torch's own message suggests weights_only=False, i.e. running the file's code: not quoted
         raise InputError(f"refusing to load: not a plain-data checkpoint ({type(exc).__name__}; a damaged file, "
                          "or one senerf did not write, and senerf never runs code from a file); delete it to "
-                         "redo that step, or rerun with --overwrite", file=path) from None
+                         "redo that step", file=path) from None
     if not isinstance(state, dict):
         raise InputError(f"checkpoint holds a {type(state).__name__}, expected a dict", file=path)
     return state

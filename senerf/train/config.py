@@ -325,8 +325,9 @@ def _check_parallax(c2w: np.ndarray, scene, train_idx) -> None:
     spread = float(np.max(np.abs(centres - centres[0])))
     if spread <= 1e-9 * max(1.0, float(np.max(np.abs(centres)))):
         views = [int(i) for i in np.asarray(train_idx).reshape(-1)][:12]
-        raise InputError(f"the training views {views} all stand at one camera centre (a pure rotation has no "
-                         "parallax, so no depth to fit); use views taken from different places",
+        who = f"the training views {views}" if len(views) >= 2 else "the scene's cameras"
+        raise InputError(f"{who} all stand at one camera centre (a pure rotation has no parallax, so no depth "
+                         "to fit); use views taken from different places",
                          file=scene.root, field="camera positions")
 
 

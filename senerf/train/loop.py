@@ -42,11 +42,11 @@ class TrainResult:
         steps: steps done in total (including those before a resume).
         resumed_from: step the run resumed from (0 for a fresh run).
         seconds: wall time of this call.
+        history: ``[{step, loss, psnr, lr, ...extra logs}]`` every ``log_every`` steps.
         seconds_before: training seconds recorded in the checkpoint this call resumed from (0 for a fresh
             run, or a checkpoint written before they were recorded): ``seconds + seconds_before`` is the
             training time of the steps done, whatever the interruptions (the steps after the last checkpoint
             of an interrupted call are redone and counted again).
-        history: ``[{step, loss, psnr, lr, ...extra logs}]`` every ``log_every`` steps.
     """
 
     field: torch.nn.Module
@@ -54,8 +54,8 @@ class TrainResult:
     steps: int
     resumed_from: int
     seconds: float
-    seconds_before: float = 0.0
     history: list = dc_field(default_factory=list)
+    seconds_before: float = 0.0
 
 
 def lr_factor(step: int, cfg: TrainConfig) -> float:

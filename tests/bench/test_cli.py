@@ -34,6 +34,9 @@ def test_run_resume_summarize_report_plot(blender_scene, fake_fit_command, tmp_p
     dry = capsys.readouterr().out
     assert "4 already finished, 4 to run" in dry and "--seed 1" in dry
     assert sum(ln.startswith("senerf-fit ") for ln in dry.splitlines()) == 4
+    # the scene's marker file names the same scene (it was "scene folder not found", so at 320e4c6)
+    assert main(_run_args(blender_scene / "transforms_train.json", out, fake_fit_command, "--dry-run")) == 0
+    assert capsys.readouterr().out == dry
     assert main(_run_args(blender_scene, out, fake_fit_command)) == 0
     records, bad = load_results(out / "results.jsonl")
     assert bad == 0 and len([r for r in records if r["status"] == "failed"]) == 4
@@ -99,7 +102,11 @@ def test_bad_input_exits_2(tmp_path, capsys):
     # run flags out of range: one line naming the flag once (checked by argparse), before anything runs
     for flags, message in ((["--workers", "0"], "argument --workers: must be >= 1, got 0"),
                            (["--timeout", "-5"], "argument --timeout: expected a finite number > 0, got '-5'"),
-                           (["--seeds", "0", "-1"], "argument --seeds: must be >= 0, got -1"),
+                           (["--seeds", "0", "-1"],
+                            "argument --seeds: must be >= 0 and <= 9223372036854775807, got -1"),
+                           (["--seeds", "99999999999999999999"],   # senerf-fit's limit, before any fit
+                            "argument --seeds: must be >= 0 and <= 9223372036854775807, "
+                            "got 99999999999999999999"),
                            (["--iterations", "-1"], "argument --iterations: must be >= 1, got -1"),
                            (["--steps", "0"], "argument --steps: must be >= 1, got 0"),
                            (["--threads", "0"], "argument --threads: must be >= 1, got 0"),

@@ -353,6 +353,15 @@ def test_marker_file_path_is_accepted(tmp_path, writers):
     # detect_format too (senerf-fit calls it first: it said "scene folder not found", so at ed16e9a), and
     # any other file is named as a file, not as missing
     assert detect_format(root / "transforms_test.json") == "blender"
+    # a relative marker path from inside the folder: the scene keeps its folder's name (it was "")
+    import os
+
+    cwd = os.getcwd()
+    try:
+        os.chdir(root)
+        assert load_scene("transforms_train.json").name == "b" and load_scene(".").name == "b"
+    finally:
+        os.chdir(cwd)
     (tmp_path / "notes.txt").write_text("x")
     with pytest.raises(InputError, match=r"notes\.txt: is a file; expected a scene folder"):
         detect_format(tmp_path / "notes.txt")
