@@ -138,9 +138,13 @@ def _ends_with_newline(path: Path) -> bool:
         return f.read(1) == b"\n"
 
 
+#: Fields every finished ("ok") line carries: the summaries, plots and reports index by them.
+_OK_FIELDS = frozenset({"scene", "protocol", "method", "preset", "seed", "iteration", "psnr"})
+
+
 def load_results(path: str | Path) -> tuple[list[dict], int]:
     """All parseable lines of a results file, and the number of lines skipped as unparseable (not UTF-8,
-    not JSON, or not a results line).
+    not JSON, not a results line, or an "ok" line without the fields every finished line carries).
 
     A missing file is an empty result (a fresh benchmark).
     """
@@ -158,7 +162,7 @@ def load_results(path: str | Path) -> tuple[list[dict], int]:
             except (UnicodeDecodeError, json.JSONDecodeError):
                 bad += 1
                 continue
-            if isinstance(rec, dict) and "run_key" in rec:
+            if isinstance(rec, dict) and "run_key" in rec and (rec.get("status") != "ok" or _OK_FIELDS <= rec.keys()):
                 records.append(rec)
             else:
                 bad += 1

@@ -67,7 +67,7 @@ def test_angles_command_on_lego(lego_dir, tmp_path, capsys):
     from senerf.data import load_scene
 
     line = {"run_key": "k", "attempt": "a", "status": "ok", "scene": "lego", "protocol": "synthetic-extreme3@100",
-            "method": "senerf", "preset": "fast", "seed": 0, "iterations": 1, "iteration": 1,
+            "method": "senerf", "preset": "fast", "seed": 0, "iterations": 1, "iteration": 1, "psnr": 18.0,
             "views": [0, 1, 51], "test_views": [0, 200, 250, 300], "per_view": {"psnr": [30.0, 15.0, 14.0, 13.0]}}
     c2w = load_scene(lego_dir, downscale=8).c2w
     angles, psnr = line_view_angles(line, c2w)

@@ -70,6 +70,21 @@ def test_append_load_tolerates_a_torn_line(tmp_path):
     assert finished_keys(records) == {SPEC.key(), second[0]["run_key"]}
 
 
+def test_an_ok_line_without_its_fields_is_unparseable(tmp_path, capsys):
+    # A hand-edited or foreign line marked "ok" but missing what the summaries index by crashed summarize
+    # with a KeyError traceback (so at 0ba0767); it is now skipped as unparseable, with the usual warning.
+    from senerf.bench.cli import main
+
+    path = tmp_path / "r.jsonl"
+    append_lines(path, result_lines(SPEC, _ok_outcome(), "c", []))
+    with open(path, "a") as f:
+        f.write('{"run_key": "k", "status": "ok"}\n')
+    records, bad = load_results(path)
+    assert bad == 1 and all(r["run_key"] != "k" for r in records)
+    assert main(["summarize", str(path)]) == 0
+    assert "Traceback" not in capsys.readouterr().err
+
+
 def test_latest_attempt_wins():
     old = result_lines(SPEC, _ok_outcome(), "c", [])
     new = result_lines(SPEC, _ok_outcome(), "c", [])
