@@ -54,7 +54,8 @@ def test_output_paths_that_cannot_be_created_are_refused_up_front(tmp_path):
     from senerf.errors import InputError
 
     (tmp_path / "afile").write_text("x")
-    with pytest.raises(InputError, match=r"afile/sub.*cannot be created: .*afile is not a folder; choose another --out"):
+    with pytest.raises(InputError,
+                       match=r"afile/sub.*cannot be created: .*afile is not a folder; choose another --out"):
         output_folder(tmp_path / "afile" / "sub" / "deeper", "--out")
     with pytest.raises(InputError, match=r"x\.md.*cannot be created: .*afile is not a folder; choose another --into"):
         output_file(tmp_path / "afile" / "x.md", "--into")

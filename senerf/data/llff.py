@@ -187,10 +187,9 @@ def load_llff(root: Path, downscale: float = 1.0, bd_factor: float | None = 0.75
     full_h, full_w = int(round(hwf[0, 0])), int(round(hwf[0, 1]))
     # The exact folder is used at its own size (LLFF's images_N may round sides differently); any other
     # folder is resized to the size implied by the full resolution.  Intrinsics scale per axis.
-    exact = _folder_factor(folder.name) == downscale
-    size = None if exact else _io.target_size(full_h, full_w, downscale)
-    rgb, alpha, native = _io.load_images(paths, [p.name for p in paths], [folder] * n, size=size)
     k = _folder_factor(folder.name)
+    size = None if k == downscale else _io.target_size(full_h, full_w, downscale)
+    rgb, alpha, native = _io.load_images(paths, [p.name for p in paths], [folder] * n, size=size)
     if abs(native[0] * k - full_h) > k or abs(native[1] * k - full_w) > k:  # more than one image pixel off
         raise InputError(f"images are {native[1]}x{native[0]}, but poses_bounds.npy's H, W = {full_h}, {full_w} "
                          f"at factor {k} give {full_w / k:.0f}x{full_h / k:.0f}", file=folder, field="images")

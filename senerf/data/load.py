@@ -44,10 +44,9 @@ def scene_root(path) -> Path:
 
 
 def detect_format(root) -> str:
-    """``'blender'``, ``'ngp'`` or ``'llff'`` for a scene folder; ``InputError`` when it matches none."""
-    root = Path(root)
-    if root.is_file() and root.name in _MARKER_NAMES:  # the scene's own marker file names its folder
-        root = root.parent
+    """``'blender'``, ``'ngp'`` or ``'llff'`` for a scene folder (or its marker file, see :func:`scene_root`);
+    ``InputError`` when it matches none."""
+    root = scene_root(root)
     if root.is_file():
         raise InputError(f"is a file; expected a scene folder (or one of its {', '.join(sorted(_MARKER_NAMES))})",
                          file=root)

@@ -238,8 +238,6 @@ def estimate_reliability(teacher, occupancy, model, scene, train_idx, pseudo_c2w
     train_idx = np.asarray(train_idx, dtype=np.int64).reshape(-1)
     intr = scene.intrinsics if pseudo_intrinsics is None else pseudo_intrinsics
     known_intr = [scene.intrinsics_all[i] for i in train_idx]
-    if all(k == known_intr[0] for k in known_intr):
-        known_intr = known_intr[0]  # one batched warp per pseudo view
     known_c2w = np.asarray(scene.c2w[train_idx], dtype=np.float64)
     if known_features is None:
         known_features = known_view_features(extractor, known_images(scene, train_idx, model))

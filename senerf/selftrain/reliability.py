@@ -138,7 +138,8 @@ def view_similarity(pseudo_features: np.ndarray, pseudo_z: np.ndarray, pseudo_op
             ``shape``, ``ndim`` and ``[j] -> (H', W', C)`` (e.g. ``extractor.lazy(images)``, which builds one
             view's full-size features at a time).
         known_z: (k, H', W') teacher z-depth of the known views (occlusion buffers).
-        known_intrinsics: one ``Intrinsics`` shared by the known views (one batched warp) or a sequence of k.
+        known_intrinsics: one ``Intrinsics`` shared by the known views, or a sequence of k (equal ones: one
+            batched warp, as for a shared one; differing ones: one warp per view).
         known_c2w: (k, 4, 4).
         opacity_threshold: foreground = opacity >= this.
         rel_tol, abs_tol: occlusion tolerances handed to ``geometry.reproject`` (its test compares with the max
@@ -172,14 +173,14 @@ def view_similarity(pseudo_features: np.ndarray, pseudo_z: np.ndarray, pseudo_op
     if k == 0:
         return ViewSimilarity(np.full((h, w), NO_MATCH, np.float32), per_view, valid, foreground)
     src_c2w = np.asarray(pseudo_c2w, dtype=np.float64)
-    if isinstance(known_intrinsics, (list, tuple)):  # per-view intrinsics: one warp call per view
-        intr = _as_intrinsics_list(known_intrinsics, k)
+    intr = _as_intrinsics_list(known_intrinsics, k)
+    if len(set(intr)) > 1:  # per-view intrinsics: one warp call per view
         warps = [geometry.reproject(pseudo_z, pseudo_intrinsics, src_c2w, intr[j], known_c2w[j],
                                     z_depth_dst=known_z[j], rel_tol=rel_tol, abs_tol=abs_tol) for j in range(k)]
         uv_all = np.stack([u for u, _ in warps])
         ok_all = np.stack([o for _, o in warps])
-    else:  # shared intrinsics: one batched call
-        uv_all, ok_all = geometry.reproject(pseudo_z, pseudo_intrinsics, src_c2w, known_intrinsics, known_c2w,
+    else:  # one shared intrinsics (given once, or k equal ones): one batched call
+        uv_all, ok_all = geometry.reproject(pseudo_z, pseudo_intrinsics, src_c2w, intr[0], known_c2w,
                                             z_depth_dst=known_z, rel_tol=rel_tol, abs_tol=abs_tol)
     flat_src = pseudo_features.reshape(-1, c)
     for j in range(k):

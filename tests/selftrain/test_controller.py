@@ -433,8 +433,8 @@ def test_unified_labels_soft_weights_and_prior_one_minus_weight(monkeypatch):
 
 
 def test_known_views_keep_their_own_intrinsics(monkeypatch):
-    """Per-frame intrinsics: the known views are rendered and warped into with their own K (a batched warp
-    with one shared K only when they are all equal); pseudo views use image 0's.  Before, image 0's K was
+    """Per-frame intrinsics: the known views are rendered and warped into with their own K (view_similarity
+    makes one batched warp of equal ones); pseudo views use image 0's.  Before, image 0's K was
     used for every known view (so at 6561c21)."""
     from types import SimpleNamespace
 
@@ -460,7 +460,7 @@ def test_known_views_keep_their_own_intrinsics(monkeypatch):
     monkeypatch.setattr(controller_mod, "view_similarity", fake_similarity)
     extractor = lambda images: np.zeros((images.shape[0], h, w, 2), np.float32)  # noqa: E731
     cfg = SelfTrainConfig(features="daisy")
-    for known, expect in (((k0, k1, k0), [k1, k0]), ((k0, k0, k0), k0)):
+    for known, expect in (((k0, k1, k0), [k1, k0]), ((k0, k0, k0), [k0, k0])):
         seen.clear()
         scene = SimpleNamespace(intrinsics=k0, intrinsics_all=known, c2w=np.stack([np.eye(4)] * 3))
         labels = controller_mod.estimate_reliability(None, None, None, scene, [1, 2], np.stack([np.eye(4)] * 2),

@@ -225,6 +225,11 @@ def test_per_view_intrinsics_match_separate_single_view_calls():
         assert both.valid[j].mean() > 0.3 and np.median(both.per_view[j][both.valid[j]]) > 0.98
     with pytest.raises(ValueError):
         view_similarity(pf, pz, opacity, K, camera(0.05), kf, kz, [K], kc)   # one intrinsics for two views
+    # a list of equal intrinsics is the shared case (one batched warp): the same result as passing one
+    shared = view_similarity(pf, pz, opacity, K, camera(0.05), kf, kz, K, kc)
+    listed = view_similarity(pf, pz, opacity, K, camera(0.05), kf, kz, [K, K], kc)
+    np.testing.assert_array_equal(listed.valid, shared.valid)
+    np.testing.assert_array_equal(listed.per_view, shared.per_view)
 
 
 def test_foreground_includes_opacity_exactly_at_the_threshold():

@@ -147,7 +147,8 @@ def _scene_wh(width, height, radius=4.031, kind="object"):
         c2w[:, 0, 3] = np.linspace(-0.1, 0.1, n)
     return Scene(name="t", root=Path("."), rgb=np.zeros((n, height, width, 3), np.float32), alpha=None,
                  intrinsics=intr, intrinsics_all=(intr,) * n, c2w=c2w, splits={"train": np.arange(n)}, kind=kind,
-                 near=1.0 if kind != "object" else None, far=None, image_paths=tuple(Path(f"{i}.png") for i in range(n)))
+                 near=1.0 if kind != "object" else None, far=None,
+                 image_paths=tuple(Path(f"{i}.png") for i in range(n)))
 
 
 @pytest.mark.parametrize("width,kind,expect", [
