@@ -3,7 +3,8 @@
 Iteration 0 trains the baseline teacher on the sparse views (photometric loss only).  Iteration ``K >= 1``:
 
 1. ``n_pseudo_per_input x m`` pseudo poses from ``senerf.geometry.sample_pseudo_views`` within
-   ``pseudo_range_deg + (K - 1) pseudo_range_step_deg`` degrees of the ``m`` inputs (10, 15, 20 ...);
+   ``pseudo_range_deg + (K - 1) pseudo_range_step_deg`` degrees of the ``m`` inputs (10, 15, 20 ...), each
+   with the intrinsics of the input it was carried from;
 2. the teacher renders them and the known views (rgb, z-depth, opacity; ``senerf.train.render_views``);
 3. features of the pseudo renders and of the *real* known images (computed once per run), feature
    consistency through ``geometry.reproject`` (:func:`senerf.selftrain.reliability.view_similarity`, with the
@@ -230,7 +231,8 @@ def estimate_reliability(teacher, occupancy, model, scene, train_idx, pseudo_c2w
             computed with :func:`known_view_features` when None.
         renders: ``(known, pseudo)`` teacher renders (``senerf.train.render_views`` dicts of the known and the
             pseudo cameras) to reuse; rendered when None.
-        pseudo_intrinsics: the pseudo cameras' ``Intrinsics`` (one, or a sequence of P); default image 0's.
+        pseudo_intrinsics: the pseudo cameras' ``Intrinsics`` (one, or a sequence of P); default image 0's
+            (the controller passes each pseudo view its source input's, see ``_sample_pseudo_poses``).
             The known views always use their own (``scene.intrinsics_all``).
     Returns:
         :class:`PseudoLabels`.
@@ -385,13 +387,21 @@ def _write_pseudo_pngs(folder: Path, labels: PseudoLabels) -> None:
         write_png(folder / f"mask_{i:03d}.png", mask)
 
 
-def _sample_pseudo_poses(scene, train_idx, cfg: SelfTrainConfig, iteration: int) -> np.ndarray:
+def _sample_pseudo_poses(scene, train_idx, cfg: SelfTrainConfig, iteration: int):
+    """The pseudo cameras of ``iteration``: ``(c2w (P, 4, 4) float64, intrinsics)``.
+
+    Each pseudo view is its source input view carried rigidly (``sample_pseudo_views``) and keeps that view's
+    intrinsics: one ``Intrinsics`` when the known views share theirs, else a tuple of P.
+    """
     rng = np.random.default_rng([cfg.seed, iteration])
-    known_c2w = np.asarray(scene.c2w[np.asarray(train_idx)], dtype=np.float64)
-    out = geometry.sample_pseudo_views(known_c2w, cfg.pseudo_range(iteration),
-                                       cfg.n_pseudo_per_input * known_c2w.shape[0], rng)
-    c2w = out[0] if isinstance(out, tuple) else out
-    return np.asarray(c2w, dtype=np.float64)
+    train_idx = np.asarray(train_idx, dtype=np.int64).reshape(-1)
+    known_c2w = np.asarray(scene.c2w[train_idx], dtype=np.float64)
+    c2w, source = geometry.sample_pseudo_views(known_c2w, cfg.pseudo_range(iteration),
+                                               cfg.n_pseudo_per_input * known_c2w.shape[0], rng)
+    known_intr = [scene.intrinsics_all[i] for i in train_idx]
+    if all(k == known_intr[0] for k in known_intr):
+        return np.asarray(c2w, dtype=np.float64), known_intr[0]
+    return np.asarray(c2w, dtype=np.float64), tuple(known_intr[int(s)] for s in source)
 
 
 def _selftrain_identity(selftrain: dict) -> dict:
@@ -553,9 +563,10 @@ def run_selftraining(scene, train_idx, test_idx, model, train_cfg, cfg: SelfTrai
                 labels = oracle_reliability(teacher, occupancy, model, scene, pseudo_idx, cfg, device=device)
                 pseudo_c2w = labels.c2w
             else:
-                pseudo_c2w = _sample_pseudo_poses(scene, train_idx, cfg, k)
+                pseudo_c2w, pseudo_k = _sample_pseudo_poses(scene, train_idx, cfg, k)
                 labels = estimate_reliability(teacher, occupancy, model, scene, train_idx, pseudo_c2w, extractor,
-                                              cfg, cfg.alpha(k), known_features=known_feats, device=device)
+                                              cfg, cfg.alpha(k), known_features=known_feats, device=device,
+                                              pseudo_intrinsics=pseudo_k)
             reliable_fraction = labels.reliable_fraction
             _write_pseudo_pngs(out / f"iter_{k}" / "pseudo", labels)
             tau_txt = ("oracle" if cfg.reliability == "oracle" else "soft" if labels.tau is None

@@ -434,7 +434,7 @@ def test_unified_labels_soft_weights_and_prior_one_minus_weight(monkeypatch):
 
 def test_known_views_keep_their_own_intrinsics(monkeypatch):
     """Per-frame intrinsics: the known views are rendered and warped into with their own K (view_similarity
-    makes one batched warp of equal ones); pseudo views use image 0's.  Before, image 0's K was
+    makes one batched warp of equal ones); pseudo views default to image 0's (the controller passes each its source's).  Before, image 0's K was
     used for every known view (so at 6561c21)."""
     from types import SimpleNamespace
 
@@ -469,3 +469,52 @@ def test_known_views_keep_their_own_intrinsics(monkeypatch):
         assert seen["render"] == [expect, k0]          # known views, then the pseudo views
         assert seen["known_k"] == expect and seen["pseudo_k"] == k0
         assert labels.intrinsics == k0
+
+
+def test_pseudo_views_keep_their_source_views_intrinsics(tiny_scene, tmp_path, monkeypatch):
+    """Per-frame intrinsics: each pseudo view is its source input carried rigidly, so it keeps that input's
+    K (source ``k % m``, the sampler's documented round robin); shared intrinsics stay one ``Intrinsics``.
+    Before, every pseudo view used image 0's K (so at eff04c6)."""
+    from types import SimpleNamespace
+
+    from senerf.train import TrainConfig, choose_model
+
+    h, w = 6, 8
+    k0 = senerf.geometry.Intrinsics.from_fov(60.0, w, h)
+    k1 = senerf.geometry.Intrinsics.from_fov(40.0, w, h)
+    c2w = np.stack([senerf.geometry.pose_from_spherical(a, 20.0, 4.0) for a in (0.0, 30.0, 60.0)])
+    cfg = SelfTrainConfig(features="daisy", n_pseudo_per_input=3)
+    scene = SimpleNamespace(intrinsics=k0, intrinsics_all=(k0, k1, k0), c2w=c2w)
+    poses, intr = controller_mod._sample_pseudo_poses(scene, [1, 2], cfg, 1)
+    assert poses.shape == (6, 4, 4) and poses.dtype == np.float64
+    assert intr == (k1, k0, k1, k0, k1, k0)
+    same = SimpleNamespace(intrinsics=k0, intrinsics_all=(k1, k1, k1), c2w=c2w)
+    poses_same, intr_same = controller_mod._sample_pseudo_poses(same, [1, 2], cfg, 1)
+    assert intr_same == k1 and np.array_equal(poses_same, poses)
+
+    # the controller hands them to the reliability estimate
+    seen = {}
+
+    def stop(*args, **kwargs):
+        seen["pseudo_intrinsics"] = kwargs.get("pseudo_intrinsics")
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(controller_mod, "estimate_reliability", stop)
+    monkeypatch.setattr(controller_mod, "make_feature_extractor", lambda *a, **k: None)
+    monkeypatch.setattr(controller_mod, "known_view_features", lambda *a, **k: None)
+    sc = tiny_scene
+    train_idx, test_idx = sc.splits["train"][:3], sc.splits["test"]
+    kk = [senerf.geometry.Intrinsics.from_fov(f, sc.intrinsics.width, sc.intrinsics.height) for f in (50, 55, 60)]
+    all_k = list(sc.intrinsics_all)
+    for i, k in zip(train_idx, kk):
+        all_k[int(i)] = k
+    sc = dataclasses.replace(sc, intrinsics_all=tuple(all_k))
+    model = choose_model(sc, train_idx, {"n_samples": 8, "resolution": 16, "occupancy_resolution": 8},
+                         echo=lambda s: None)
+    tcfg = TrainConfig(steps=2, batch_rays=32, warmup_steps=1, checkpoint_every=0, occupancy_warmup=4,
+                       occupancy_every=4)
+    with pytest.raises(KeyboardInterrupt):
+        controller_mod.run_selftraining(sc, train_idx, test_idx, model, tcfg,
+                                        SelfTrainConfig(iterations=1, n_pseudo_per_input=2, features="daisy"),
+                                        tmp_path / "run", progress=False, echo=lambda s: None)
+    assert seen["pseudo_intrinsics"] == tuple(kk) * 2
