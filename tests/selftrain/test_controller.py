@@ -434,8 +434,8 @@ def test_unified_labels_soft_weights_and_prior_one_minus_weight(monkeypatch):
 
 def test_known_views_keep_their_own_intrinsics(monkeypatch):
     """Per-frame intrinsics: the known views are rendered and warped into with their own K (view_similarity
-    makes one batched warp of equal ones); pseudo views default to image 0's (the controller passes each its source's).  Before, image 0's K was
-    used for every known view (so at 6561c21)."""
+    makes one batched warp of equal ones); pseudo views default to image 0's (the controller passes each its
+    source's).  Before, image 0's K was used for every known view (so at 6561c21)."""
     from types import SimpleNamespace
 
     from senerf.selftrain.reliability import ViewSimilarity
