@@ -134,7 +134,10 @@ def _cmd_run(args: argparse.Namespace, argv: list[str]) -> int:
     out = output_folder(args.out, "--out")
     results_flag = "--results" if args.results else "--out"
     results = output_file(args.results if args.results else out / "results.jsonl", results_flag)
-    _read_results(results, results_flag)   # readable (a missing file is a fresh benchmark)
+    records, bad = _read_results(results, results_flag)   # readable (a missing file is a fresh benchmark)
+    if bad and not records:   # appending would mix our lines into someone's file (a README, a log)
+        raise InputError(f"not a senerf-bench results file ({bad} non-blank line(s), none a results line); choose another "
+                         f"{results_flag}", file=results)
     args.scenes = [str(scene_root(s)) for s in args.scenes]   # a scene's marker file names its folder
     for s in args.scenes:
         if not args.dry_run and not Path(s).is_dir():

@@ -234,3 +234,24 @@ def test_output_paths_that_cannot_be_written(blender_scene, fake_fit_command, tm
         assert flag in _one_error_line(capsys), flags
         assert not list(bench.glob("runs/*")), flags      # no fit ran
     assert a_file.read_text() == "mine" and not any(a_dir.iterdir())
+
+
+def test_run_refuses_to_append_to_a_file_that_is_not_results(blender_scene, fake_fit_command, tmp_path, capsys):
+    """``--results README.md``: no line of it is a results line, so appending would mix our lines into the
+    user's file; refused before any fit, the file untouched (before 2078031: appended to)."""
+    readme = tmp_path / "README.md"
+    readme.write_text("# my notes\n\nsome text\n")
+    run = ["run", "--scenes", str(blender_scene), "--methods", "baseline", "--fit-command",
+           shlex.join(fake_fit_command), "--out", str(tmp_path / "bench")]
+    for extra in ([], ["--dry-run"]):
+        assert main([*run, "--results", str(readme), *extra]) == 2
+        line = _one_error_line(capsys)
+        assert f"{readme}: not a senerf-bench results file (2 non-blank line(s), none a results line)" in line
+        assert "--results" in line
+        assert readme.read_text() == "# my notes\n\nsome text\n"
+        assert not list((tmp_path / "bench").glob("runs/*"))
+    # a results file with one torn line (a killed writer) still resumes
+    torn = tmp_path / "torn.jsonl"
+    torn.write_text(_FINISHED_LINE.rstrip("\n") + "\n{\"run_key\": \"x\", \"sta\n")
+    assert main([*run, "--results", str(torn), "--dry-run"]) == 0
+    capsys.readouterr()
