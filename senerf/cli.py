@@ -200,7 +200,7 @@ def _check_device(device: str) -> str:
 #: Keys every run.json that senerf-fit writes has: how a folder is recognised as one of its runs.
 _RUN_KEYS = frozenset({"scene_dir", "format", "protocol", "train", "model"})
 #: What senerf-fit writes into its folder (and ``--overwrite`` removes from a folder of another run).
-_OUTPUT_NAMES = ("checkpoints", "metrics.json", _RUN_FILE)
+_OUTPUT_NAMES = ("checkpoints", "metrics.json", "summary.png", _RUN_FILE)
 
 
 def _comparable(identity: dict) -> dict:
@@ -397,7 +397,38 @@ def _run(args, argv) -> int:
         print(f"{PROG}: iteration {it['iteration']}: PSNR {it['psnr']:.2f} dB, SSIM {it['ssim']:.3f}, "
               f"LPIPS {it['lpips']}, {it['seconds']:.0f} s")
     print(f"{PROG}: metrics in {out / 'metrics.json'}")
+    summary = _write_summary(metrics, scene, train_idx, test_idx, model, out)
+    if summary is not None:
+        print(f"{PROG}: summary figure in {summary}")
     return 0
+
+
+def _write_summary(metrics: dict, scene, train_idx, test_idx, model, out: Path) -> Path | None:
+    """``out/summary.png`` (:func:`senerf.report.plot_run_summary`); the metrics are already on disk, so a
+    figure that cannot be drawn is a one-line warning, never a failed run."""
+    import numpy as np
+
+    from senerf.geometry import closest_point_to_axes, nearest_view_angles
+    from senerf.report import plot_run_summary
+
+    train_c2w, test_c2w = scene.c2w[np.asarray(train_idx)], scene.c2w[np.asarray(test_idx)]
+    try:
+        # object scenes: the angle about the point the cameras look at; forward-facing: between optical axes
+        center = None if scene.kind == "forward_facing" else closest_point_to_axes(scene.c2w)
+        angles = nearest_view_angles(train_c2w, test_c2w, center)
+    except ValueError:   # all axes parallel, or a camera at that point: no angle panel
+        angles = None
+    bg = (1.0, 1.0, 1.0) if model.eval_background == "white" else (0.0, 0.0, 0.0)
+
+    def ground_truth(position: int) -> np.ndarray:
+        i = int(test_idx[position])
+        return scene.composite(bg, [i])[0] if scene.alpha is not None else scene.rgb[i]
+
+    try:
+        return plot_run_summary(metrics, out, out / "summary.png", angles_deg=angles, ground_truth=ground_truth)
+    except (OSError, ValueError) as exc:
+        print(f"{PROG}: warning: no summary figure ({exc})", file=sys.stderr)
+        return None
 
 
 def _one_line_warning(message, category, filename, lineno, file=None, line=None) -> None:

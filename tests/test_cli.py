@@ -87,7 +87,8 @@ def test_tiny_end_to_end_fit_resume_and_overwrite(tiny_scene, tmp_path, capsys):
         assert (out / "iter_0" / "test" / f"rgb_{k:03d}.png").is_file()
         assert (out / "iter_0" / "test" / f"depth_{k:03d}.png").is_file()
     assert (out / "checkpoints" / "iter_0_train.pt").is_file()
-    capsys.readouterr()
+    assert (out / "summary.png").is_file()
+    assert f"summary figure in {out / 'summary.png'}" in capsys.readouterr().out
 
     # the same command resumes its own (finished) run: same result, no retraining
     assert main([str(tiny_scene), "--out", str(out), *TINY]) == 0
@@ -142,6 +143,13 @@ def test_overwrite_never_deletes_what_senerf_fit_did_not_make(tiny_scene, tmp_pa
     (other / "notes.txt").write_text("keep")
     assert main([str(tiny_scene), "--out", str(other), *TINY]) == 2
     assert "not a senerf-fit output folder; use --overwrite" in _one_error_line(capsys)
+    # a user's own summary.png is a name a run writes: refused, even with --overwrite
+    figure = tmp_path / "figs"
+    figure.mkdir()
+    (figure / "summary.png").write_bytes(b"my figure")
+    assert main([str(tiny_scene), "--out", str(figure), *TINY, "--overwrite"]) == 2
+    assert "holds summary.png, which a run would overwrite" in _one_error_line(capsys)
+    assert (figure / "summary.png").read_bytes() == b"my figure"
 
 
 def test_an_out_that_cannot_be_created_is_refused_before_any_work(tiny_scene, tmp_path, capsys):

@@ -1,0 +1,159 @@
+"""One figure per ``senerf-fit`` run, ``summary.png``: what the run bought, where, and what it looks like.
+
+* top left: mean test PSNR per iteration (0 = the teacher), SSIM on the right axis, the reliable share of
+  each iteration's pseudo pixels beside its point;
+* top right: per-test-view PSNR against the angle to the nearest training camera, for iteration 0 and the
+  last iteration (faint points, binned means as lines): where self-training helped;
+* below: three test views (nearest, median and farthest from the training cameras), ground truth beside
+  the renders of iteration 0 and of the last iteration, each titled with its PSNR.
+
+It reads only ``metrics.json``'s rows (DESIGN.md contract) and the test renders the run wrote
+(``iter_K/test/rgb_XXX.png``); the ground truth and the angles come from the caller (the scene).  Written
+atomically with matplotlib's Agg canvas (no pyplot state, no global backend switch).
+"""
+
+from __future__ import annotations
+
+import io
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+from .atomic import atomic_write_bytes
+
+__all__ = ["plot_run_summary", "pick_views"]
+
+
+def pick_views(angles_deg: np.ndarray | None, psnr: np.ndarray, k: int = 3) -> list[int]:
+    """Positions of up to ``k`` test views to show: nearest, median and farthest by ``angles_deg (n,)``
+    (spread evenly over the sorted angles when ``k != 3``), or by ``psnr (n,)`` (best, median, worst) when
+    there are no angles.  Distinct positions, in that order."""
+    key = np.asarray(angles_deg if angles_deg is not None else -np.asarray(psnr, np.float64), np.float64)
+    n = key.size
+    if n == 0:
+        return []
+    order = np.argsort(key, kind="stable")
+    picks = [int(order[int(round(q * (n - 1)))]) for q in np.linspace(0.0, 1.0, min(k, n))]
+    return list(dict.fromkeys(picks))
+
+
+def _binned(a: np.ndarray, p: np.ndarray, bin_deg: float) -> tuple[list[float], list[float]]:
+    edges = np.arange(0.0, float(a.max()) + bin_deg, bin_deg)
+    which = np.digitize(a, edges) - 1
+    centres, means = [], []
+    for b in range(len(edges) - 1):
+        sel = which == b
+        if sel.any():
+            centres.append((edges[b] + edges[b + 1]) / 2)
+            means.append(float(p[sel].mean()))
+    return centres, means
+
+
+def _read_render(run_dir: Path, iteration: int, position: int) -> np.ndarray | None:
+    import imageio.v2 as imageio
+
+    path = run_dir / f"iter_{iteration}" / "test" / f"rgb_{position:03d}.png"
+    try:
+        return np.asarray(imageio.imread(path))[..., :3]
+    except (OSError, ValueError):
+        return None
+
+
+def plot_run_summary(metrics: dict, run_dir: str | Path, path: str | Path,
+                     angles_deg: np.ndarray | None = None,
+                     ground_truth: Callable[[int], np.ndarray] | None = None, bin_deg: float = 15.0) -> Path:
+    """Draw the run's summary figure to ``path`` (PNG, atomic).
+
+    Args:
+        metrics: the run's ``metrics.json`` dict (``scene``, ``iterations`` rows with ``psnr``, ``ssim``,
+            ``reliable_fraction``, ``per_view["psnr"]``).
+        run_dir: the run's folder (its ``iter_K/test/rgb_XXX.png`` renders; missing ones are left blank).
+        path: the PNG to write.
+        angles_deg: (n_test,) degrees from each test view to its nearest training camera
+            (:func:`senerf.geometry.nearest_view_angles`), or None (no angle panel; views picked by PSNR).
+        ground_truth: ``position -> (H, W, 3)`` image in [0, 1] of test view ``position``, or None.
+        bin_deg: angle bin width of the mean lines.
+    Returns:
+        ``Path(path)``.
+    Raises:
+        ValueError: no iteration rows, or per-view / angle lengths that disagree.
+    """
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    rows = sorted(metrics.get("iterations") or [], key=lambda r: r["iteration"])
+    if not rows:
+        raise ValueError("metrics has no iteration rows")
+    first, last = rows[0], rows[-1]
+    p_first = np.asarray(first["per_view"]["psnr"], np.float64)
+    p_last = np.asarray(last["per_view"]["psnr"], np.float64)
+    if p_first.shape != p_last.shape:
+        raise ValueError(f"per-view PSNR lengths differ: {p_first.size} and {p_last.size}")
+    if angles_deg is not None:
+        angles_deg = np.asarray(angles_deg, np.float64).reshape(-1)
+        if angles_deg.shape != p_first.shape:
+            raise ValueError(f"angles_deg has {angles_deg.size} values for {p_first.size} test views")
+    run_dir = Path(run_dir)
+    compare = [first] if first is last else [first, last]
+    views = pick_views(angles_deg, p_first)
+
+    fig = Figure(figsize=(12.0, 3.4 + 2.8 * len(views)), layout="constrained")
+    top, bottom = fig.subfigures(2, 1, height_ratios=[3.4, 2.8 * max(len(views), 1)])
+    ax_it, ax_ssim, ax_ang = top.subplots(1, 3, width_ratios=[1.0, 1.0, 1.6])
+    its = [r["iteration"] for r in rows]
+    for ax, key, colour, label in ((ax_it, "psnr", "C0", "mean test PSNR (dB)"),
+                                   (ax_ssim, "ssim", "C1", "mean test SSIM")):
+        ax.plot(its, [r[key] for r in rows], "-o", color=colour)
+        ax.set_xlabel("iteration (0 = teacher)")
+        ax.set_ylabel(label)
+        ax.set_xticks(its)
+        ax.margins(x=0.15, y=0.2)
+        ax.grid(alpha=0.3)
+    for r in rows:
+        if r.get("reliable_fraction") is not None:
+            ax_it.annotate(f"{100 * r['reliable_fraction']:.0f} % reliable", (r["iteration"], r["psnr"]),
+                           textcoords="offset points", xytext=(0, -14), ha="center", fontsize=7, color="0.35")
+    gain = last["psnr"] - first["psnr"]
+    ax_it.set_title(f"{first['psnr']:.2f} -> {last['psnr']:.2f} dB ({gain:+.2f})", fontsize=9)
+    ax_ssim.set_title(f"{first['ssim']:.3f} -> {last['ssim']:.3f}", fontsize=9)
+    if angles_deg is not None and angles_deg.size:
+        for row, colour in zip(compare, ("C0", "C3")):
+            p = np.asarray(row["per_view"]["psnr"], np.float64)
+            ax_ang.scatter(angles_deg, p, s=6, alpha=0.25, color=colour)
+            ax_ang.plot(*_binned(angles_deg, p, bin_deg), "-o", ms=3, color=colour,
+                        label=f"iteration {row['iteration']}")
+        ax_ang.set_xlabel("angle to the nearest training view (degrees)")
+        ax_ang.set_ylabel("test-view PSNR (dB)")
+        ax_ang.legend(fontsize=8)
+        ax_ang.grid(alpha=0.3)
+        ax_ang.set_title("per test view", fontsize=9)
+    else:
+        ax_ang.hist(p_last - p_first, bins=20, color="C0")
+        ax_ang.set_xlabel(f"PSNR change per test view, iteration {last['iteration']} - 0 (dB)")
+        ax_ang.set_ylabel("test views")
+        ax_ang.set_title("per test view", fontsize=9)
+    top.suptitle(f"{metrics.get('scene', '')}: {len(rows) - 1} self-training iteration(s), {len(p_first)} "
+                 f"test views", fontsize=10)
+
+    if views:
+        cols = (["ground truth"] if ground_truth is not None else []) + [f"iteration {r['iteration']}"
+                                                                         for r in compare]
+        axes = np.asarray(bottom.subplots(len(views), len(cols), squeeze=False))
+        for i, pos in enumerate(views):
+            images = ([np.clip(np.asarray(ground_truth(pos), np.float64), 0.0, 1.0)] if ground_truth else [])
+            images += [_read_render(run_dir, r["iteration"], pos) for r in compare]
+            titles = ([f"ground truth (test view {pos})"] if ground_truth else [])
+            titles += [f"iteration {r['iteration']}: {r['per_view']['psnr'][pos]:.2f} dB" for r in compare]
+            if angles_deg is not None:
+                titles[0] += f", {angles_deg[pos]:.0f} deg"
+            for ax, image, title in zip(axes[i], images, titles):
+                if image is not None:
+                    ax.imshow(image)
+                ax.set_title(title, fontsize=8)
+                ax.set_axis_off()
+    FigureCanvasAgg(fig)
+    buf = io.BytesIO()
+    fig.savefig(buf, dpi=100, format="png")
+    atomic_write_bytes(path, buf.getvalue())
+    return Path(path)

@@ -1,0 +1,78 @@
+"""senerf.report: the run summary figure (which views it picks, what it shows, its errors)."""
+
+from __future__ import annotations
+
+import imageio.v2 as imageio
+import numpy as np
+import pytest
+
+from senerf.report import pick_views, plot_run_summary
+
+
+def test_pick_views_nearest_median_farthest_by_angle_else_best_median_worst_by_psnr():
+    angles = np.array([30.0, 10.0, 50.0, 20.0, 40.0])
+    assert pick_views(angles, np.zeros(5)) == [1, 0, 2]            # 10, 30, 50 degrees
+    assert pick_views(None, np.array([1.0, 5.0, 3.0])) == [1, 2, 0]  # 5, 3, 1 dB
+    assert pick_views(np.array([7.0]), np.zeros(1)) == [0]
+    assert pick_views(np.array([9.0, 3.0]), np.zeros(2)) == [1, 0]
+    assert pick_views(np.array([]), np.zeros(0)) == []
+    assert pick_views(angles, np.zeros(5), k=5) == [1, 3, 0, 4, 2]
+
+
+def _colour(iteration: int, position: int) -> tuple[int, int, int]:
+    return (40 + 50 * iteration, 20 + 30 * position, 200 - 60 * iteration)
+
+
+def _run(tmp_path, n=5, iterations=(0, 2)):
+    rows = []
+    for it in iterations:
+        folder = tmp_path / f"iter_{it}" / "test"
+        folder.mkdir(parents=True)
+        for pos in range(n):
+            imageio.imwrite(folder / f"rgb_{pos:03d}.png", np.full((12, 12, 3), _colour(it, pos), np.uint8))
+        rows.append(dict(iteration=it, psnr=15.0 + it, ssim=0.6 + 0.01 * it,
+                         reliable_fraction=None if it == 0 else 0.4,
+                         per_view=dict(psnr=[15.0 + it + 0.1 * p for p in range(n)])))
+    return dict(scene="toy", iterations=rows)
+
+
+def _has_colour(image: np.ndarray, rgb) -> bool:
+    return bool(np.all(image[..., :3] == np.asarray(rgb, np.uint8), axis=-1).sum() > 50)
+
+
+def test_summary_shows_the_picked_views_of_the_first_and_last_iteration(tmp_path):
+    metrics = _run(tmp_path)
+    angles = np.array([30.0, 10.0, 50.0, 20.0, 40.0])
+    gt_colour = {p: (255 - 20 * p, 255, 0) for p in range(5)}
+    out = plot_run_summary(metrics, tmp_path, tmp_path / "summary.png", angles_deg=angles,
+                           ground_truth=lambda p: np.full((12, 12, 3), gt_colour[p], np.float64) / 255.0)
+    image = imageio.imread(out)
+    assert image.shape[1] == 1200 and image.shape[0] > 900   # 12 in wide at 100 dpi, three rows of views
+    for pos in range(5):
+        shown = pos in (1, 0, 2)
+        assert _has_colour(image, _colour(0, pos)) == shown, pos
+        assert _has_colour(image, _colour(2, pos)) == shown, pos
+        assert _has_colour(image, gt_colour[pos]) == shown, pos
+    assert not list(tmp_path.glob("*.tmp*"))
+
+
+def test_summary_of_a_baseline_only_run_and_missing_renders(tmp_path):
+    metrics = _run(tmp_path, n=3, iterations=(0,))
+    (tmp_path / "iter_0" / "test" / "rgb_001.png").unlink()   # a missing render is left blank
+    out = plot_run_summary(metrics, tmp_path, tmp_path / "s.png")
+    image = imageio.imread(out)
+    # no angles: best, median, worst by iteration 0's PSNR (positions 2, 1, 0); no ground truth column
+    assert _has_colour(image, _colour(0, 2)) and _has_colour(image, _colour(0, 0))
+    assert not _has_colour(image, _colour(0, 1))
+
+
+def test_summary_refuses_inconsistent_metrics(tmp_path):
+    metrics = _run(tmp_path, n=3)
+    with pytest.raises(ValueError, match="3 test views"):
+        plot_run_summary(metrics, tmp_path, tmp_path / "s.png", angles_deg=np.zeros(4))
+    metrics["iterations"][1]["per_view"]["psnr"] = [1.0]
+    with pytest.raises(ValueError, match="lengths differ"):
+        plot_run_summary(metrics, tmp_path, tmp_path / "s.png")
+    with pytest.raises(ValueError, match="no iteration rows"):
+        plot_run_summary(dict(iterations=[]), tmp_path, tmp_path / "s.png")
+    assert not (tmp_path / "s.png").exists()
