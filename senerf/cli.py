@@ -20,6 +20,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import re
 import shutil
 import sys
 import time
@@ -165,36 +166,53 @@ def _model_overrides(args) -> dict:
     return out
 
 
-def _check_model_fits(model) -> None:
-    """:class:`InputError` when the field's feature planes (with their gradients and Adam's two moments:
-    4 copies) would not fit in half of this machine's host memory (also with ``--device cuda``, where the
-    scene and the renders live on the host): refused before anything is written."""
+def _check_model_fits(model, device: str = "cpu") -> None:
+    """:class:`InputError` when the field's feature planes would not fit, refused before anything is written.
+
+    Host: the planes with their gradients and Adam's two moments (4 copies) against half of this machine's
+    memory (also with ``--device cuda``, where the scene and the renders live on the host).  CUDA: those 4
+    copies plus the backward pass's blend buffers (about 5 more, ``senerf.fields.interp``) against the GPU's
+    total memory.
+    """
     if model.field != "kplanes":
         return
     from senerf.fields.interp import plane_layout
 
     _, rows = plane_layout(tuple(int(model.resolution * m) for m in model.multires))
-    need = 4 * rows * model.n_features * 4  # float32 planes, gradients, Adam's m and v
+    table = rows * model.n_features * 4  # one float32 copy of the planes
     try:
         have = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
     except (ValueError, OSError, AttributeError):  # pragma: no cover - platforms without sysconf
-        return
-    if need > have // 2:
-        raise InputError(f"{model.resolution} needs {need / 2**30:.1f} GiB for the feature planes and their "
-                         f"optimiser state, more than half of this machine's {have / 2**30:.0f} GiB",
+        have = None
+    if have is not None and 4 * table > have // 2:
+        raise InputError(f"{model.resolution} needs {4 * table / 2**30:.1f} GiB for the feature planes and "
+                         f"their optimiser state, more than half of this machine's {have / 2**30:.0f} GiB",
                          field="--resolution")
+    if device.startswith("cuda"):
+        import torch
+
+        gpu = torch.cuda.get_device_properties(torch.device(device).index or 0).total_memory
+        if 9 * table > gpu:
+            raise InputError(f"{model.resolution} needs {9 * table / 2**30:.1f} GiB of GPU memory for the feature "
+                             f"planes, their optimiser state and gradients, more than the GPU's "
+                             f"{gpu / 2**30:.0f} GiB", field="--resolution")
 
 
 def _check_device(device: str) -> str:
+    """``device`` when torch can use it: ``cpu``, ``cuda`` or ``cuda:N`` with an N this machine has."""
     import torch
 
     if device == "cpu":
         return device
-    if device == "cuda" or device.startswith("cuda:"):
-        if not torch.cuda.is_available():
-            raise InputError("CUDA requested but torch sees no GPU (use --device cpu)", field="--device")
-        return device
-    raise InputError(f"expected cpu or cuda, got {device!r}", field="--device")
+    if not re.fullmatch(r"cuda(:(0|[1-9][0-9]*))?", device):
+        raise InputError(f"expected cpu, cuda or cuda:N, got {device!r}", field="--device")
+    if not torch.cuda.is_available():
+        raise InputError("CUDA requested but torch sees no GPU (use --device cpu)", field="--device")
+    index = torch.device(device).index
+    if index is not None and index >= torch.cuda.device_count():
+        raise InputError(f"{device} requested but torch sees {torch.cuda.device_count()} GPU(s) "
+                         f"(cuda:0 ... cuda:{torch.cuda.device_count() - 1})", field="--device")
+    return device
 
 
 #: Keys every run.json that senerf-fit writes has: how a folder is recognised as one of its runs.
@@ -318,6 +336,7 @@ def _selftrain_available():
 
 
 def _run(args, argv) -> int:
+    device = _check_device(args.device)   # before the demo writes its scene
     if args.demo:
         try:
             from senerf.demo import run_demo
@@ -327,7 +346,6 @@ def _run(args, argv) -> int:
         return int(run_demo(args, argv[1:]) or 0)
     if not args.scene:
         raise InputError("a SCENE_DIR is required (or --demo)", field="SCENE_DIR")
-    device = _check_device(args.device)
 
     from senerf.data import detect_format, fewshot_split, load_scene, scene_root
     from senerf.train import PRESETS, choose_model, config_to_dict, preset_train_config
@@ -348,7 +366,7 @@ def _run(args, argv) -> int:
           f"{len(train_idx)} training views {list(map(int, train_idx))[:12]}{' ...' if len(train_idx) > 12 else ''}, "
           f"{len(test_idx)} test views")
     model = choose_model(scene, train_idx, {**PRESETS[args.preset]["model"], **_model_overrides(args)})
-    _check_model_fits(model)
+    _check_model_fits(model, device)
     overrides = {k: v for k, v in (("steps", args.steps), ("batch_rays", args.batch_rays)) if v is not None}
     train_cfg = preset_train_config(args.preset, seed=args.seed, device=device, **overrides)
 

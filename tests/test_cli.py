@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import math
 import subprocess
 import sys
 
@@ -285,3 +286,86 @@ def test_negative_views_get_the_range_message_and_a_file_is_not_missing(tiny_sce
     assert main([str(out / "metrics.json"), "--out", str(tmp_path / "o3"), *TINY]) == 2
     assert "metrics.json: is a file; expected a scene folder" in _one_error_line(capsys)
     assert not (tmp_path / "o").exists() and not (tmp_path / "o3").exists()
+
+
+@pytest.mark.parametrize("device", ["cuda:x", "cuda:", "cuda:01", "cuda:-1", "cudafoo", "CUDA", "cpu:0", "tpu"])
+def test_malformed_devices_are_refused_by_name(device, monkeypatch):
+    """Before, anything starting with 'cuda:' passed the check and torch raised at the first tensor, after
+    run.json was written (so at 9bf94cf)."""
+    import torch
+
+    from senerf.cli import _check_device
+
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: True)   # the name is wrong whatever the machine
+    with pytest.raises(InputError, match=r"--device.*expected cpu, cuda or cuda:N"):
+        _check_device(device)
+
+
+def test_cuda_ordinal_and_gpu_memory_are_checked_before_anything_is_written(tiny_scene, tmp_path, monkeypatch,
+                                                                          capsys):
+    import types
+
+    import torch
+
+    from senerf.cli import _check_device, _check_model_fits
+
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: True)
+    monkeypatch.setattr(torch.cuda, "device_count", lambda: 2)
+    assert _check_device("cuda") == "cuda" and _check_device("cuda:1") == "cuda:1"
+    with pytest.raises(InputError, match=r"cuda:2 requested but torch sees 2 GPU\(s\) \(cuda:0 \.\.\. cuda:1\)"):
+        _check_device("cuda:2")
+    # GPU memory: the planes (rows x features float32) times 9 against the card's total
+    from senerf.fields.interp import plane_layout
+
+    model = types.SimpleNamespace(field="kplanes", resolution=64, multires=(1, 2), n_features=16)
+    _, rows = plane_layout((64, 128))
+    table = rows * 16 * 4
+    asked = []
+
+    def props(index):
+        asked.append(index)
+        return types.SimpleNamespace(total_memory=gpu_bytes)
+
+    monkeypatch.setattr(torch.cuda, "get_device_properties", props)
+    gpu_bytes = 9 * table
+    _check_model_fits(model, "cuda:1")                     # exactly fits
+    gpu_bytes = 9 * table - 1
+    with pytest.raises(InputError, match="GiB of GPU memory"):
+        _check_model_fits(model, "cuda:1")
+    _check_model_fits(model, "cpu")                        # the GPU is not asked on the CPU
+    assert asked == [1, 1]
+    with pytest.raises(InputError, match="GPU memory"):
+        _check_model_fits(model, "cuda")
+    assert asked[-1] == 0
+    # ... and through the command line: refused before run.json is written
+    out = tmp_path / "run"
+    assert main([str(tiny_scene), "--out", str(out), *SMALL, "--device", "cuda:5"]) == 2
+    assert "cuda:5 requested but torch sees 2 GPU(s)" in _one_error_line(capsys)
+    assert not out.exists()
+
+
+def test_demo_checks_the_device_before_writing_its_scene(tmp_path, capsys):
+    """Before, ``--demo --device tpu`` wrote the demo scene and then failed (so at 9bf94cf)."""
+    out = tmp_path / "demo"
+    assert main(["--demo", "--out", str(out), "--device", "tpu", "--quiet"]) == 2
+    assert "--device" in _one_error_line(capsys)
+    assert not out.exists()
+
+
+@pytest.mark.skipif(not __import__("torch").cuda.is_available(), reason="needs a CUDA GPU")
+def test_a_selftraining_fit_on_cuda_end_to_end_and_resumed(tiny_scene, tmp_path, capsys):
+    """The whole command on the GPU: rays, baseline, teacher renders, reliability, the student with the
+    teacher queried on the device, evaluation, teacher.pt; then the same command resumes the finished run."""
+    out = tmp_path / "gpu"
+    argv = [str(tiny_scene), "--out", str(out), "--protocol", "all", "--steps", "16", "--batch-rays", "128",
+            "--samples", "12", "--resolution", "8", "--iterations", "1", "--pseudo-views", "1",
+            "--features", "daisy", "--device", "cuda", "--quiet"]
+    assert main(argv) == 0
+    doc = json.loads((out / "metrics.json").read_text())
+    assert [it["iteration"] for it in doc["iterations"]] == [0, 1]
+    assert all(math.isfinite(it["psnr"]) for it in doc["iterations"])
+    assert doc["config"]["train"]["device"] == "cuda" and (out / "checkpoints" / "teacher.pt").is_file()
+    capsys.readouterr()
+    assert main(argv) == 0
+    assert json.loads((out / "metrics.json").read_text())["iterations"] == doc["iterations"]
+    assert "resuming after iteration 1" in capsys.readouterr().out

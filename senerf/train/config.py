@@ -10,6 +10,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
+import re
 from dataclasses import dataclass, fields
 from typing import Any, Callable, Mapping
 
@@ -83,8 +84,8 @@ class TrainConfig:
             raise InputError(f"must be >= 0, got {self.tv_weight!r}", field="tv_weight")
         if not isinstance(self.seed, int) or isinstance(self.seed, bool):
             raise InputError(f"must be an integer, got {self.seed!r}", field="seed")
-        if not (self.device == "cpu" or str(self.device).startswith("cuda")):
-            raise InputError(f"must be 'cpu' or 'cuda', got {self.device!r}", field="device")
+        if not (self.device == "cpu" or re.fullmatch(r"cuda(:(0|[1-9][0-9]*))?", str(self.device))):
+            raise InputError(f"must be 'cpu', 'cuda' or 'cuda:N', got {self.device!r}", field="device")
 
 
 @dataclass(frozen=True)

@@ -147,10 +147,12 @@ def _continuation_seed(seed: int, step: int) -> int:
     return int(hashlib.sha256(f"senerf-resume:{int(seed)}:{int(step)}".encode()).hexdigest()[:15], 16)
 
 
-def _restore(path: Path, field, optimizer, generator, occupancy, fingerprint: str, device, seed: int
+def _restore(path: Path, field, optimizer, generator, occupancy, fingerprint: str, seed: int
              ) -> tuple[int, float]:
     """Load a training checkpoint into the objects; returns ``(step, training seconds recorded in it)``."""
-    state = load_checkpoint(path, map_location=device)
+    # on the host: load_state_dict copies into the device's tensors, and Adam's step counters stay CPU
+    # scalars as in a fresh run (mapped to CUDA they would make every step sync with the GPU)
+    state = load_checkpoint(path, map_location="cpu")
     if state.get("format") != "senerf-train-1":
         raise InputError("not a senerf training checkpoint", file=path)
     if state.get("fingerprint") != fingerprint:
@@ -180,8 +182,9 @@ def train_field(field: torch.nn.Module, rays: RayBatchSource, cfg: TrainConfig,
             this step renders with (None before ``cfg.occupancy_warmup``); must draw randomness only from
             ``generator``.
         checkpoint: a ``.pt`` path: resumed from when it exists, written atomically every
-            ``cfg.checkpoint_every`` steps and at the end.  A resume on the device type the checkpoint
-            was written on ends bit for bit as an uninterrupted run; on another (CPU <-> CUDA) the ray
+            ``cfg.checkpoint_every`` steps and at the end.  On the CPU a resume ends bit for bit as an
+            uninterrupted run (on CUDA it continues the same random stream, but CUDA's ``index_add_`` and
+            ``cumsum`` are not deterministic, so not to the bit); on another device type (CPU <-> CUDA) the ray
             batches continue from a new stream seeded from ``(cfg.seed, step)``, with a warning.
         progress: show a tqdm bar (step, loss, PSNR, rays/s).
         log_every: steps between history entries / progress updates.
@@ -209,7 +212,7 @@ def train_field(field: torch.nn.Module, rays: RayBatchSource, cfg: TrainConfig,
     start, seconds_before = 0, 0.0
     ckpt = Path(checkpoint) if checkpoint is not None else None
     if ckpt is not None and ckpt.exists():
-        start, seconds_before = _restore(ckpt, field, optimizer, generator, occupancy, fingerprint, device,
+        start, seconds_before = _restore(ckpt, field, optimizer, generator, occupancy, fingerprint,
                                          cfg.seed)
 
     history: list[dict] = []

@@ -67,8 +67,11 @@ def test_overrides_win_and_are_reported(capsys):
 def test_config_validation():
     with pytest.raises(InputError):
         TrainConfig(steps=-1)
-    with pytest.raises(InputError):
-        TrainConfig(device="tpu")
+    for device in ("tpu", "cudafoo", "cuda:", "cuda:01", "cuda:-1"):   # before: any 'cuda...' passed
+        with pytest.raises(InputError, match="'cpu', 'cuda' or 'cuda:N'"):
+            TrainConfig(device=device)
+    for device in ("cpu", "cuda", "cuda:0", "cuda:12"):   # a name torch accepts (GPUs are checked at use)
+        assert TrainConfig(device=device).device == device
     with pytest.raises(InputError):
         ModelConfig(aabb=((0, 0, 0), (0, 1, 1)))
     with pytest.raises(InputError):
