@@ -440,16 +440,16 @@ class DistillationLoss:
             m = pr.reliable[rel]
             l_c = (m * ((teacher["rgb"] - student["rgb"][:nr]) ** 2).sum(dim=1)).mean()
             total = total + cfg.lambda_color * l_c
-            logs["distill_color"] = float(l_c.detach())
+            logs["distill_color"] = l_c.detach()   # a float at log steps only (no GPU sync per step)
             if cfg.density_distill and cfg.lambda_geometry > 0:
                 g_s = self._geometry({k: v[:nr] for k, v in student.items() if k in ("weights", "sigma")})
                 l_g = (m * self._distance(self._geometry(teacher), g_s)).mean()
                 total = total + cfg.lambda_geometry * l_g
-                logs["distill_geometry"] = float(l_g.detach())
+                logs["distill_geometry"] = l_g.detach()
         if pri.numel():
             target = self._prior_target(pri, generator)
             g_s = self._geometry({k: v[nr:] for k, v in student.items() if k in ("weights", "sigma")})
             l_p = (pr.prior[pri] * self._distance(target, g_s)).mean()
             total = total + cfg.lambda_prior * l_p
-            logs["distill_prior"] = float(l_p.detach())
+            logs["distill_prior"] = l_p.detach()
         return total, logs

@@ -27,8 +27,9 @@ from .rays import RayBatchSource
 __all__ = ["train_field", "TrainResult", "lr_factor", "make_occupancy", "background_color", "ExtraLoss",
            "load_state_keeping_box"]
 
-#: ``extra_loss(field, step, generator, occupancy) -> (scalar loss tensor, {name: float})``; ``occupancy`` is
-#: the grid the step renders the real rays with (None before ``occupancy_warmup`` or without a grid)
+#: ``extra_loss(field, step, generator, occupancy) -> (scalar loss tensor, {name: float or 0-d tensor})``;
+#: ``occupancy`` is the grid the step renders the real rays with (None before ``occupancy_warmup`` or without
+#: a grid); the logged values are read (``float``) at log steps only
 ExtraLoss = Callable[[torch.nn.Module, int, torch.Generator, object], "tuple[torch.Tensor, dict]"]
 
 
@@ -177,8 +178,8 @@ def train_field(field: torch.nn.Module, rays: RayBatchSource, cfg: TrainConfig,
         rays: the training rays (on ``cfg.device``); ``rays.model`` gives the render settings
             (samples, background policy, occupancy grid).
         cfg: optimisation settings.
-        extra_loss: ``extra_loss(field, step, generator, occupancy) -> (scalar tensor, {name: float})``
-            added to the loss every step (self-training's distillation losses); ``occupancy`` is the grid
+        extra_loss: ``extra_loss(field, step, generator, occupancy) -> (scalar tensor, {name: float or 0-d
+            tensor})`` added to the loss every step (self-training's distillation losses); ``occupancy`` is the grid
             this step renders with (None before ``cfg.occupancy_warmup``); must draw randomness only from
             ``generator``.
         checkpoint: a ``.pt`` path: resumed from when it exists, written atomically every
