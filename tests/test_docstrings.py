@@ -28,12 +28,9 @@ COVERED_ELSEWHERE = {
     "senerf.bench.ladder": "bench/test_ladder.py",
 }
 
-#: module -> why its examples cannot pass now (the case is a strict xfail: it fails loudly once fixed)
-KNOWN_FAILURES = {
-    "senerf.data.load": "senerf/data/load.py:92-93: both examples are '# doctest: +SKIP' (they need the lego "
-                        "scene), so doctest attempts none; test_data_examples_hold_on_the_benchmark_data "
-                        "runs them un-skipped",
-}
+#: module -> the test below that runs its examples (they are '+SKIP' in the module: they need the benchmark
+#: data, so plain doctest attempts none)
+NEEDS_DATA = {"senerf.data.load": "test_data_examples_hold_on_the_benchmark_data"}
 
 FLAGS = doctest.NORMALIZE_WHITESPACE | doctest.ELLIPSIS
 
@@ -50,12 +47,13 @@ def _modules_with_examples() -> list[str]:
 
 
 WITH_EXAMPLES = _modules_with_examples()
-HERE = [name for name in WITH_EXAMPLES if name not in COVERED_ELSEWHERE]
+HERE = [name for name in WITH_EXAMPLES if name not in COVERED_ELSEWHERE and name not in NEEDS_DATA]
 
 
 def test_discovery_finds_the_known_modules():
     assert set(COVERED_ELSEWHERE) <= set(WITH_EXAMPLES), "a module listed as covered has no examples now"
-    assert {"senerf.errors", "senerf.data.load"} <= set(HERE)
+    assert "senerf.errors" in HERE and set(NEEDS_DATA) <= set(WITH_EXAMPLES)
+    assert all(callable(globals().get(test)) for test in NEEDS_DATA.values())
 
 
 @pytest.mark.parametrize("name", sorted(COVERED_ELSEWHERE))
@@ -66,11 +64,7 @@ def test_covered_elsewhere_is_true(name):
         f"{COVERED_ELSEWHERE[name]} no longer runs {name}'s examples"
 
 
-@pytest.mark.parametrize("name", [
-    pytest.param(name, marks=pytest.mark.xfail(strict=True, reason=KNOWN_FAILURES[name]))
-    if name in KNOWN_FAILURES else name
-    for name in HERE
-])
+@pytest.mark.parametrize("name", HERE)
 def test_docstring_examples(name):
     module = importlib.import_module(name)
     result = doctest.testmod(module, optionflags=FLAGS)

@@ -1,7 +1,8 @@
 """Loaders for the JSON camera formats: NeRF Synthetic (Blender) and instant-ngp / nerfstudio.
 
 * **Blender** (``transforms_{train,val,test}.json``): ``camera_angle_x`` (horizontal field of view,
-  radians), per frame ``file_path`` without extension (``.png`` is appended) and ``transform_matrix``.
+  radians), per frame ``file_path`` without extension (``.png`` is appended) and ``transform_matrix``;
+  the instant-ngp intrinsics below (``fl_x``, ``cx``, ... at the top level or per frame) are read here too.
   ``transforms_train.json`` is required; a missing ``transforms_val.json`` / ``transforms_test.json``
   gives an empty split.  The arrays hold train, then val, then test frames in file order.  A frame whose
   image is missing is an error (view indices must stay stable).

@@ -1,4 +1,4 @@
-"""Few-shot protocols: which views train and which views test (REFERENCE section 5).
+"""Few-shot protocols: which views train and which views test (the published protocols, table below).
 
 ``fewshot_split(scene, protocol, views=None, n_views=None, seed=0) -> (train_idx, test_idx)``; both are
 int64 arrays of indices into the scene's arrays (``scene.rgb``, ``scene.c2w``), train in protocol order.

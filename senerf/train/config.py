@@ -109,10 +109,10 @@ class ModelConfig:
             starts the field nearly empty (measured on lego, all views, 600 steps: -4 gave 11.2 dB
             against 25.7 dB with 0, because the grid pruned cells before they were learnt; keep 0).
         view_dependent: colour depends on the view direction.
-        hidden: width of the K-Planes density and colour MLPs.  32, not the paper's 64: on lego at 100x100,
-            32 gave 26.70 dB (all views, balanced, seed 0; 64: 26.65) and 16.60 ± 0.63 dB (Extreme, fast,
-            seeds 0/1/2; 64: 16.10 ± 0.79), and 1.8x the training throughput (benchmarks/bench_fields.py;
-            BENCHMARKS.md); pass ``hidden=64`` for the paper's width.
+        hidden: width of the K-Planes density and colour MLPs.  32, not the paper's 64: on lego Extreme at
+            100x100 (fast preset, seeds 0/1/2) 32 gave 16.60 ± 0.63 dB against 64's 16.10 ± 0.79
+            (BENCHMARKS.md, "Decoder width"), for half the decoder's work; pass ``hidden=64`` for the
+            paper's width.
         n_samples: samples per ray (stratified, one per evenly spaced bin).
         occupancy_resolution: occupancy grid cells per axis (0: no grid).
         occupancy_threshold: density above which a grid cell is occupied.
