@@ -22,7 +22,7 @@ import numpy as np
 
 from .atomic import atomic_write_bytes
 
-__all__ = ["plot_run_summary", "pick_views"]
+__all__ = ["plot_run_summary", "pick_views", "binned_means"]
 
 
 def pick_views(angles_deg: np.ndarray | None, psnr: np.ndarray, k: int = 3) -> list[int]:
@@ -38,8 +38,12 @@ def pick_views(angles_deg: np.ndarray | None, psnr: np.ndarray, k: int = 3) -> l
     return list(dict.fromkeys(picks))
 
 
-def _binned(a: np.ndarray, p: np.ndarray, bin_deg: float) -> tuple[list[float], list[float]]:
-    edges = np.arange(0.0, float(a.max()) + bin_deg, bin_deg)
+def binned_means(a: np.ndarray, p: np.ndarray, bin_deg: float) -> tuple[list[float], list[float]]:
+    """(bin centres, mean of ``p (n,)`` in each non-empty ``bin_deg``-wide bin of ``a (n,)`` from 0)."""
+    a, p = np.asarray(a, np.float64), np.asarray(p, np.float64)
+    if a.size == 0:
+        return [], []
+    edges = bin_deg * np.arange(int(a.max() // bin_deg) + 2)   # the last bin holds the maximum (an edge too)
     which = np.digitize(a, edges) - 1
     centres, means = [], []
     for b in range(len(edges) - 1):
@@ -121,7 +125,7 @@ def plot_run_summary(metrics: dict, run_dir: str | Path, path: str | Path,
         for row, colour in zip(compare, ("C0", "C3")):
             p = np.asarray(row["per_view"]["psnr"], np.float64)
             ax_ang.scatter(angles_deg, p, s=6, alpha=0.25, color=colour)
-            ax_ang.plot(*_binned(angles_deg, p, bin_deg), "-o", ms=3, color=colour,
+            ax_ang.plot(*binned_means(angles_deg, p, bin_deg), "-o", ms=3, color=colour,
                         label=f"iteration {row['iteration']}")
         ax_ang.set_xlabel("angle to the nearest training view (degrees)")
         ax_ang.set_ylabel("test-view PSNR (dB)")

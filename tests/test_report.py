@@ -6,7 +6,7 @@ import imageio.v2 as imageio
 import numpy as np
 import pytest
 
-from senerf.report import pick_views, plot_run_summary
+from senerf.report import binned_means, pick_views, plot_run_summary
 
 
 def test_pick_views_nearest_median_farthest_by_angle_else_best_median_worst_by_psnr():
@@ -76,3 +76,12 @@ def test_summary_refuses_inconsistent_metrics(tmp_path):
     with pytest.raises(ValueError, match="no iteration rows"):
         plot_run_summary(dict(iterations=[]), tmp_path, tmp_path / "s.png")
     assert not (tmp_path / "s.png").exists()
+
+
+def test_binned_means_by_hand():
+    a = np.array([1.0, 14.0, 16.0, 44.0, 29.9, 0.0])
+    p = np.array([1.0, 3.0, 10.0, 7.0, 20.0, 2.0])
+    # bins [0, 15): 1, 14, 0 -> (1 + 3 + 2) / 3; [15, 30): 16, 29.9 -> 15; [30, 45): 44 -> 7
+    assert binned_means(a, p, 15.0) == ([7.5, 22.5, 37.5], [2.0, 15.0, 7.0])
+    assert binned_means(np.array([45.0]), np.array([3.0]), 15.0) == ([52.5], [3.0])   # an edge opens its bin
+    assert binned_means(np.array([]), np.array([]), 15.0) == ([], [])

@@ -24,6 +24,7 @@ from matplotlib.figure import Figure
 from matplotlib.ticker import LogLocator, NullFormatter, ScalarFormatter
 
 from senerf.geometry import nearest_view_angles  # re-exported: the bench's angle plots use it
+from senerf.report import binned_means
 
 from .summary import PRESET_ORDER, Aggregate
 
@@ -179,14 +180,7 @@ def plot_psnr_vs_angle(angles_deg: dict[str, np.ndarray], psnr: dict[str, np.nda
         if a.shape != p.shape:
             raise ValueError(f"{label}: angles {a.shape} and psnr {p.shape} differ")
         dots = ax.scatter(a, p, s=6, alpha=0.25, color=colour)
-        edges = np.arange(0.0, a.max() + bin_deg, bin_deg) if a.size else np.zeros(1)
-        which = np.digitize(a, edges) - 1
-        centres, means = [], []
-        for b in range(len(edges) - 1):
-            sel = which == b
-            if sel.any():
-                centres.append((edges[b] + edges[b + 1]) / 2)
-                means.append(p[sel].mean())
+        centres, means = binned_means(a, p, bin_deg)
         ax.plot(centres, means, "-o", ms=3, color=dots.get_facecolor()[0][:3], label=label)
     ax.set_xlabel("angle to the nearest training view (degrees)")
     ax.set_ylabel("test-view PSNR (dB)")
