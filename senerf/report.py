@@ -81,7 +81,8 @@ def plot_run_summary(metrics: dict, run_dir: str | Path, path: str | Path,
     Returns:
         ``Path(path)``.
     Raises:
-        ValueError: no iteration rows, or per-view / angle lengths that disagree.
+        ValueError: no iteration rows, a row without ``psnr`` / ``ssim`` / ``per_view["psnr"]``, or per-view /
+            angle lengths that disagree.
     """
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
@@ -89,6 +90,9 @@ def plot_run_summary(metrics: dict, run_dir: str | Path, path: str | Path,
     rows = sorted(metrics.get("iterations") or [], key=lambda r: r["iteration"])
     if not rows:
         raise ValueError("metrics has no iteration rows")
+    for r in rows:
+        if not ({"psnr", "ssim"} <= r.keys() and isinstance(r.get("per_view"), dict) and "psnr" in r["per_view"]):
+            raise ValueError(f"iteration {r['iteration']}'s row lacks psnr, ssim or per_view.psnr")
     first, last = rows[0], rows[-1]
     p_first = np.asarray(first["per_view"]["psnr"], np.float64)
     p_last = np.asarray(last["per_view"]["psnr"], np.float64)

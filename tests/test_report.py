@@ -73,6 +73,9 @@ def test_summary_refuses_inconsistent_metrics(tmp_path):
     metrics["iterations"][1]["per_view"]["psnr"] = [1.0]
     with pytest.raises(ValueError, match="lengths differ"):
         plot_run_summary(metrics, tmp_path, tmp_path / "s.png")
+    del metrics["iterations"][0]["per_view"]
+    with pytest.raises(ValueError, match="iteration 0's row lacks psnr, ssim or per_view.psnr"):
+        plot_run_summary(metrics, tmp_path, tmp_path / "s.png")
     with pytest.raises(ValueError, match="no iteration rows"):
         plot_run_summary(dict(iterations=[]), tmp_path, tmp_path / "s.png")
     assert not (tmp_path / "s.png").exists()
