@@ -369,3 +369,18 @@ def test_a_selftraining_fit_on_cuda_end_to_end_and_resumed(tiny_scene, tmp_path,
     assert main(argv) == 0
     assert json.loads((out / "metrics.json").read_text())["iterations"] == doc["iterations"]
     assert "resuming after iteration 1" in capsys.readouterr().out
+
+
+def test_a_summary_figure_that_cannot_be_drawn_is_a_warning_not_a_failed_run(tiny_scene, tmp_path, capsys,
+                                                                              monkeypatch):
+    import senerf.report
+
+    def broken(*args, **kwargs):
+        raise ValueError("iteration 0's row lacks psnr, ssim or per_view.psnr")
+
+    monkeypatch.setattr(senerf.report, "plot_run_summary", broken)
+    out = tmp_path / "run"
+    assert main([str(tiny_scene), "--out", str(out), *TINY]) == 0
+    err = capsys.readouterr().err
+    assert "senerf-fit: warning: no summary figure (iteration 0's row lacks" in err
+    assert (out / "metrics.json").is_file() and not (out / "summary.png").exists()
