@@ -43,10 +43,11 @@ def ensure_demo_scene(scene_dir: Path, seed: int = 0) -> Path:
     marker = scene_dir / "procedural.json"
     if marker.is_file():
         try:
-            if json.loads(marker.read_text()).get("camera_seed") == seed:
-                return scene_dir
+            meta = json.loads(marker.read_text())
         except (OSError, ValueError):
-            pass
+            meta = None  # damaged: rebuilt below
+        if isinstance(meta, dict) and meta.get("camera_seed") == seed:  # JSON but no object: damaged too
+            return scene_dir
         shutil.rmtree(scene_dir)
     scene_dir.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=".scene-", dir=scene_dir.parent))

@@ -7,6 +7,9 @@ from __future__ import annotations
 
 import json
 import re
+from pathlib import Path
+
+import pytest
 
 from senerf.cli import main
 from senerf.procedural import DEMO_FEWSHOT_VIEWS
@@ -74,3 +77,93 @@ def test_demo_refuses_options_it_would_ignore_and_a_users_folder(tmp_path, capsy
     (leftovers / ".scene-abc").mkdir(parents=True)
     (leftovers / ".DS_Store").write_text("")
     _check_demo_folder(leftovers, overwrite=False)
+
+
+def _scene_seed(scene_dir):
+    return json.loads((scene_dir / "procedural.json").read_text())["camera_seed"]
+
+
+def test_demo_scene_is_reused_or_rebuilt_whole(tmp_path):
+    """The same seed reuses the scene; another seed, or a damaged procedural.json (unreadable, or JSON but
+    not an object), rebuilds it; no build leaves a .scene-* temporary behind."""
+    from senerf.demo import ensure_demo_scene
+
+    scene = tmp_path / "demo_scene"
+    assert ensure_demo_scene(scene, seed=0) == scene and _scene_seed(scene) == 0
+    stamp = (scene / "transforms_train.json").stat().st_mtime_ns
+    ensure_demo_scene(scene, seed=0)
+    assert (scene / "transforms_train.json").stat().st_mtime_ns == stamp
+    ensure_demo_scene(scene, seed=1)
+    assert _scene_seed(scene) == 1
+    for damaged in ("{ half written", "[]", "null"):  # JSON that is no object crashed it (a traceback) before
+        (scene / "procedural.json").write_text(damaged)
+        ensure_demo_scene(scene, seed=1)
+        assert _scene_seed(scene) == 1
+    assert len(json.loads((scene / "transforms_train.json").read_text())["frames"]) == 20
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["demo_scene"]
+
+
+def test_an_interrupted_scene_build_leaves_nothing(tmp_path, monkeypatch):
+    import senerf.procedural
+    from senerf.demo import ensure_demo_scene
+
+    def killed_halfway(out_dir, seed=0, overwrite=False):
+        (out_dir / "train").mkdir(parents=True)
+        (out_dir / "transforms_train.json").write_text("{}")
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(senerf.procedural, "make_demo_scene", killed_halfway)
+    with pytest.raises(KeyboardInterrupt):
+        ensure_demo_scene(tmp_path / "out" / "demo_scene", seed=0)
+    assert list((tmp_path / "out").iterdir()) == []  # no half scene, no temporary
+
+
+def test_overwrite_puts_the_demo_beside_a_users_files(tmp_path):
+    from senerf.demo import _check_demo_folder
+    from senerf.errors import InputError
+
+    user = tmp_path / "user"
+    (user / "fit").mkdir(parents=True)
+    (user / "b.txt").write_text("mine")
+    (user / "a.txt").write_text("mine")
+    with pytest.raises(InputError, match=r"it holds a\.txt\); use --overwrite"):
+        _check_demo_folder(user, overwrite=False)
+    _check_demo_folder(user, overwrite=True)
+    _check_demo_folder(tmp_path / "absent", overwrite=False)
+
+
+def test_demo_hands_its_own_choices_and_the_users_to_the_fit(tmp_path, monkeypatch, capsys):
+    """run_demo's call of senerf-fit (stubbed here: it records its arguments and writes a metrics.json):
+    the demo's scene, views and preset; the user's seed, overwrite, quiet, steps and batch rays; the
+    default --out runs/demo; then both PSNRs of the metrics and their difference."""
+    import senerf.cli
+    from senerf.demo import run_demo
+
+    calls = []
+
+    def fit(argv):
+        calls.append(senerf.cli.build_parser().parse_args(argv))
+        iterations = [{"iteration": 0, "psnr": 20.0}, {"iteration": 1, "psnr": 21.5}, {"iteration": 2, "psnr": 23.25}]
+        (calls[-1].out / "metrics.json").parent.mkdir(parents=True, exist_ok=True)
+        (calls[-1].out / "metrics.json").write_text(json.dumps({"iterations": iterations, "seconds_total": 12.4}))
+        return status
+
+    monkeypatch.setattr(senerf.cli, "main", fit)
+    monkeypatch.chdir(tmp_path)
+    argv = ["--demo", "--seed", "7", "--overwrite", "--quiet", "--steps", "30"]
+    status = 0
+    assert run_demo(senerf.cli.build_parser().parse_args(argv), argv) == 0
+    demo = tmp_path.resolve() / "runs" / "demo"
+    (got,) = calls
+    assert (Path(got.scene).resolve(), got.out.resolve()) == (demo / "demo_scene", demo / "fit")
+    assert (got.views, got.preset) == (list(DEMO_FEWSHOT_VIEWS), "fast")
+    assert (got.seed, got.overwrite, got.quiet, got.steps, got.batch_rays) == (7, True, True, 30, None)
+    assert _scene_seed(demo / "demo_scene") == 7
+    text = capsys.readouterr().out
+    assert ("baseline (iteration 0) test PSNR 20.00 dB; SE-NeRF (iteration 2) test PSNR 23.25 dB (+3.25 dB); 12 s"
+            in text)
+    status = 1  # a failed fit: its status, and no PSNR line
+    argv = ["--demo", "--seed", "7", "--batch-rays", "64"]
+    assert run_demo(senerf.cli.build_parser().parse_args(argv), argv) == 1
+    assert (calls[-1].overwrite, calls[-1].quiet, calls[-1].steps, calls[-1].batch_rays) == (False, False, None, 64)
+    assert "PSNR" not in capsys.readouterr().out

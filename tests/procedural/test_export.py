@@ -108,11 +108,45 @@ def test_refuses_existing_scene_and_bad_arguments(exported, tmp_path):
         export_blender_scene(tmp_path / "c", camera_angle_x=4.0)
     with pytest.raises(ValueError):
         export_blender_scene(tmp_path / "d", radius=1.0)
+    # cameras at 2.5 could sit inside the scene's bounds [-1.5, 1.5]^3 (its corners are 1.5 sqrt(3) = 2.6 out)
+    with pytest.raises(ValueError, match="radius"):
+        export_blender_scene(tmp_path / "e", radius=2.5)
+    with pytest.raises(ValueError, match="camera_angle_x"):
+        export_blender_scene(tmp_path / "f", camera_angle_x=0.0)
+    with pytest.raises(ValueError, match="n_train"):
+        export_blender_scene(tmp_path / "g", n_train=True)  # a bool is not a count
+    with pytest.raises(ValueError, match="elevation_range"):
+        hemisphere_poses(3, np.random.default_rng(0), elevation_range=(60.0, 30.0))
+    a_file = tmp_path / "a_file"
+    a_file.write_text("mine")
+    with pytest.raises(InputError, match="exists and is not a folder"):
+        export_blender_scene(a_file, n_train=1, n_val=0, n_test=0, width=8, height=8)
+    assert a_file.read_text() == "mine"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a_file"]  # nothing written for a refused call
+
+
+def test_overwrite_replaces_a_scene_and_all_train_views_may_be_one_sided(tmp_path):
+    out = tmp_path / "s"
+    small = dict(n_val=0, n_test=0, width=8, height=6)
+    export_blender_scene(out, SceneConfig(seed=1), n_train=2, seed=3, **small)
+    export_blender_scene(out, SceneConfig(seed=2), n_train=3, n_one_side=3, seed=5, overwrite=True, **small)
+    meta = json.loads((out / "procedural.json").read_text())
+    assert meta["camera_seed"] == 5 and meta["scene_config"]["seed"] == 2
+    assert meta["one_side_train_views"] == [0, 1, 2]
+    _, c2w = _json_poses(out, "train")
+    assert np.max(np.abs(c2w - one_side_poses(3, np.random.default_rng(5)))) < 1e-9
+
+
+def test_hemisphere_poses_are_area_uniform():
+    """Uniform over the spherical zone's area: P(elevation < 45) = (sin 45 - sin 10) / (sin 80 - sin 10)
+    = 0.658 (0.5 if elevations were uniform in angle)."""
+    _, el, _ = spherical_from_pose(hemisphere_poses(4000, np.random.default_rng(1)))
+    assert abs(np.mean(el < 45.0) - 0.6577) < 0.03
 
 
 def test_make_demo_scene(tmp_path):
     t0 = time.perf_counter()
-    out = make_demo_scene(tmp_path / "demo", seed=0)
+    out = make_demo_scene(tmp_path / "demo", seed=1)
     dt = time.perf_counter() - t0
     print(f"\n[procedural] make_demo_scene: {dt:.2f} s")
     scene = load_scene(out)
@@ -120,4 +154,6 @@ def test_make_demo_scene(tmp_path):
     assert scene.rgb.shape[1:3] == (100, 100)
     az, el, _ = spherical_from_pose(scene.c2w[scene.splits["train"][list(DEMO_FEWSHOT_VIEWS)]])
     assert np.all(np.mod(az, 360.0) <= 70.0)
+    meta = json.loads((out / "procedural.json").read_text())
+    assert meta["camera_seed"] == 1 and meta["scene_config"]["seed"] == 1  # the seed drives both
     assert dt < 10.0

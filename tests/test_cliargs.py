@@ -1,0 +1,65 @@
+"""senerf.cliargs: the flag converters' bounds (inclusive at both ends), and one ``argument --flag: problem``
+line through argparse."""
+
+from __future__ import annotations
+
+import pytest
+
+from senerf.cliargs import SEED_MAX, OneLineParser, float_flag, int_flag
+from senerf.errors import InputError
+
+
+def _parse(type_, text: str):
+    parser = OneLineParser(prog="prog")
+    parser.add_argument("--x", type=type_)
+    return parser.parse_args([f"--x={text}"]).x  # "--x=-inf": not taken for an option
+
+
+@pytest.mark.parametrize("kwargs, accepted, refused, bound", [
+    ({}, ["1", "7"], ["0", "-1"], ">= 1"),
+    ({"allow_zero": True}, ["0", "1"], ["-1"], ">= 0"),
+    ({"minimum": 2}, ["2", "3"], ["1"], ">= 2"),
+    ({"allow_zero": True, "maximum": 5}, ["0", "5"], ["6", "-1"], ">= 0 and <= 5"),
+    ({"allow_zero": True, "maximum": SEED_MAX}, ["9223372036854775807"], ["9223372036854775808"],
+     ">= 0 and <= 9223372036854775807"),
+])
+def test_int_flag_bounds_are_inclusive(kwargs, accepted, refused, bound):
+    for text in accepted:
+        assert _parse(int_flag("--x", **kwargs), text) == int(text)
+    for text in refused:
+        with pytest.raises(InputError) as info:
+            _parse(int_flag("--x", **kwargs), text)
+        assert str(info.value) == f"argument --x: must be {bound}, got {int(text)}"
+
+
+def test_int_flag_refuses_a_non_integer():
+    for text in ("1.5", "x", ""):
+        with pytest.raises(InputError) as info:
+            _parse(int_flag("--x"), text)
+        assert str(info.value) == f"argument --x: expected an integer, got {text!r}"
+
+
+@pytest.mark.parametrize("kwargs, accepted, refused, bound", [
+    ({}, ["-3.5", "0", "1e300"], [], ""),
+    ({"minimum": 1.0}, ["1", "1.5"], ["0.999"], " >= 1"),
+    ({"positive": True}, ["1e-300", "2"], ["0", "-0.0", "-1"], " > 0"),
+    ({"minimum": 0.0, "maximum": 0.5}, ["0", "0.5"], ["-1e-9", "0.5000001"], " >= 0 and <= 0.5"),
+    ({"maximum": 2.0}, ["2", "-7"], ["2.01"], " <= 2"),
+])
+def test_float_flag_bounds_are_inclusive_and_refuse_non_finite(kwargs, accepted, refused, bound):
+    for text in accepted:
+        assert _parse(float_flag("--x", **kwargs), text) == float(text)
+    for text in [*refused, "nan", "inf", "-inf", "Infinity"]:
+        with pytest.raises(InputError) as info:
+            _parse(float_flag("--x", **kwargs), text)
+        assert str(info.value) == f"argument --x: expected a finite number{bound}, got {text!r}"
+
+
+def test_parser_errors_are_input_errors_not_exits():
+    parser = OneLineParser(prog="prog")
+    parser.add_argument("--x", type=int_flag("--x"), required=True)
+    for argv, needle in ((["--x", "1", "--bogus"], "unrecognized arguments: --bogus"),
+                         ([], "the following arguments are required: --x")):
+        with pytest.raises(InputError, match=needle) as info:
+            parser.parse_args(argv)
+        assert "\n" not in str(info.value)
