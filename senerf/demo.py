@@ -133,7 +133,7 @@ def run_demo(args, argv: list[str] | None = None) -> int:
     print(f"senerf-fit --demo: baseline (iteration 0) test PSNR {base['psnr']:.2f} dB; "
           f"SE-NeRF (iteration {final['iteration']}) test PSNR {final['psnr']:.2f} dB "
           f"({final['psnr'] - base['psnr']:+.2f} dB); {metrics['seconds_total']:.0f} s")
-    print(f"senerf-fit --demo: outputs in {fit_out.resolve()} (metrics.json, iter_*/test renders, "
+    print(f"senerf-fit --demo: outputs in {fit_out.resolve()} (summary.png, metrics.json, iter_*/test renders, "
           f"iter_*/pseudo reliability masks)")
     sys.stdout.flush()
     return 0
