@@ -199,13 +199,14 @@ def _check_model_fits(model, device: str = "cpu") -> None:
 
 
 def _check_device(device: str) -> str:
-    """``device`` when torch can use it: ``cpu``, ``cuda`` or ``cuda:N`` with an N this machine has."""
-    import torch
-
+    """``device`` when torch can use it: ``cpu``, ``cuda`` or ``cuda:N`` with an N this machine has (torch is
+    imported only for a CUDA name)."""
     if device == "cpu":
         return device
     if not re.fullmatch(r"cuda(:(0|[1-9][0-9]*))?", device):
         raise InputError(f"expected cpu, cuda or cuda:N, got {device!r}", field="--device")
+    import torch
+
     if not torch.cuda.is_available():
         raise InputError("CUDA requested but torch sees no GPU (use --device cpu)", field="--device")
     index = torch.device(device).index
@@ -245,7 +246,7 @@ def _prepare_out(out: Path, identity: dict, overwrite: bool) -> None:
 
     ``--overwrite`` only ever removes what senerf-fit wrote: a folder whose ``run.json`` is not one of ours
     (unreadable, or without our keys) is refused even then, and so is a folder of other files that holds
-    any name senerf-fit would write (``metrics.json``, ``checkpoints``, ``iter_*``).
+    any name senerf-fit would write (``metrics.json``, ``summary.png``, ``checkpoints``, ``iter_*``).
     """
     from senerf.atomic import output_folder
     from senerf.train import atomic_write_text, differences_text, settings_differences
@@ -434,8 +435,8 @@ def _write_summary(metrics: dict, scene, train_idx, test_idx, model, out: Path) 
         # object scenes: the angle about the point the cameras look at; forward-facing: between optical axes
         center = None if scene.kind == "forward_facing" else closest_point_to_axes(scene.c2w)
         angles = nearest_view_angles(train_c2w, test_c2w, center)
-    except ValueError:   # all axes parallel, or a camera at that point: no angle panel
-        angles = None
+    except ValueError:   # all axes parallel, or a camera at that point: the angle between optical axes
+        angles = nearest_view_angles(train_c2w, test_c2w, None)
     bg = (1.0, 1.0, 1.0) if model.eval_background == "white" else (0.0, 0.0, 0.0)
 
     def ground_truth(position: int) -> np.ndarray:
@@ -444,8 +445,8 @@ def _write_summary(metrics: dict, scene, train_idx, test_idx, model, out: Path) 
 
     try:
         return plot_run_summary(metrics, out, out / "summary.png", angles_deg=angles, ground_truth=ground_truth)
-    except (OSError, ValueError) as exc:
-        print(f"{PROG}: warning: no summary figure ({exc})", file=sys.stderr)
+    except (OSError, ValueError, MemoryError) as exc:
+        print(f"{PROG}: warning: no summary figure ({exc or type(exc).__name__})", file=sys.stderr)
         return None
 
 

@@ -54,6 +54,13 @@ def binned_means(a: np.ndarray, p: np.ndarray, bin_deg: float) -> tuple[list[flo
     return centres, means
 
 
+def _shrink(image: np.ndarray, max_side: int = 400) -> np.ndarray:
+    """``image (H, W, C)`` with every ``s``-th pixel per axis, ``s`` the smallest stride that brings its longer
+    side to ``max_side`` or below (a panel is ~400 px wide: full-size 4032x3024 photos cost seconds and GBs)."""
+    stride = max(1, -(-max(image.shape[:2]) // max_side))
+    return image[::stride, ::stride]
+
+
 def _read_render(run_dir: Path, iteration: int, position: int) -> np.ndarray | None:
     import imageio.v2 as imageio
 
@@ -87,9 +94,12 @@ def plot_run_summary(metrics: dict, run_dir: str | Path, path: str | Path,
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
-    rows = sorted(metrics.get("iterations") or [], key=lambda r: r["iteration"])
+    rows = metrics.get("iterations") or []
     if not rows:
         raise ValueError("metrics has no iteration rows")
+    if not all(isinstance(r, dict) and isinstance(r.get("iteration"), int) for r in rows):
+        raise ValueError("an iteration row is not an object with an integer 'iteration'")
+    rows = sorted(rows, key=lambda r: r["iteration"])
     for r in rows:
         if not ({"psnr", "ssim"} <= r.keys() and isinstance(r.get("per_view"), dict) and "psnr" in r["per_view"]):
             raise ValueError(f"iteration {r['iteration']}'s row lacks psnr, ssim or per_view.psnr")
@@ -121,7 +131,8 @@ def plot_run_summary(metrics: dict, run_dir: str | Path, path: str | Path,
     for r in rows:
         if r.get("reliable_fraction") is not None:
             ax_it.annotate(f"{100 * r['reliable_fraction']:.0f} % reliable", (r["iteration"], r["psnr"]),
-                           textcoords="offset points", xytext=(0, -14), ha="center", fontsize=7, color="0.35")
+                           textcoords="offset points", xytext=(0, -14), fontsize=7, color="0.35",
+                           ha="right" if r is last else "center")
     gain = last["psnr"] - first["psnr"]
     ax_it.set_title(f"{first['psnr']:.2f} -> {last['psnr']:.2f} dB ({gain:+.2f})", fontsize=9)
     ax_ssim.set_title(f"{first['ssim']:.3f} -> {last['ssim']:.3f}", fontsize=9)
@@ -137,7 +148,12 @@ def plot_run_summary(metrics: dict, run_dir: str | Path, path: str | Path,
         ax_ang.grid(alpha=0.3)
         ax_ang.set_title("per test view", fontsize=9)
     else:
-        ax_ang.hist(p_last - p_first, bins=20, color="C0")
+        change = p_last - p_first
+        change = change[np.isfinite(change)]   # a perfect render's PSNR is inf
+        lo, hi = (float(change.min()), float(change.max())) if change.size else (0.0, 0.0)
+        if hi - lo < 1e-3:   # (nearly) one value: numpy cannot split a zero-width range into 20 bins
+            lo, hi = lo - 0.5, hi + 0.5
+        ax_ang.hist(change, bins=20, range=(lo, hi), color="C0")
         ax_ang.set_xlabel(f"PSNR change per test view, iteration {last['iteration']} - 0 (dB)")
         ax_ang.set_ylabel("test views")
         ax_ang.set_title("per test view", fontsize=9)
@@ -149,9 +165,13 @@ def plot_run_summary(metrics: dict, run_dir: str | Path, path: str | Path,
                                                                          for r in compare]
         axes = np.asarray(bottom.subplots(len(views), len(cols), squeeze=False))
         for i, pos in enumerate(views):
-            images = ([np.clip(np.asarray(ground_truth(pos), np.float64), 0.0, 1.0)] if ground_truth else [])
+            images = ([np.clip(np.asarray(ground_truth(pos), np.float32), 0.0, 1.0)] if ground_truth else [])
             images += [_read_render(run_dir, r["iteration"], pos) for r in compare]
-            titles = ([f"ground truth (test view {pos})"] if ground_truth else [])
+            images = [None if im is None else _shrink(im) for im in images]
+            test_views = metrics.get("test_views")
+            name = (f"image {test_views[pos]}" if isinstance(test_views, list) and len(test_views) == len(p_first)
+                    else f"test view {pos}")
+            titles = ([f"ground truth ({name})"] if ground_truth else [])
             titles += [f"iteration {r['iteration']}: {r['per_view']['psnr'][pos]:.2f} dB" for r in compare]
             if angles_deg is not None:
                 titles[0] += f", {angles_deg[pos]:.0f} deg"

@@ -384,3 +384,32 @@ def test_a_summary_figure_that_cannot_be_drawn_is_a_warning_not_a_failed_run(tin
     err = capsys.readouterr().err
     assert "senerf-fit: warning: no summary figure (iteration 0's row lacks" in err
     assert (out / "metrics.json").is_file() and not (out / "summary.png").exists()
+
+
+def test_summary_angles_fall_back_to_optical_axes_when_the_cameras_have_no_common_point(tiny_scene, tmp_path,
+                                                                                         monkeypatch):
+    import numpy as np
+
+    import senerf.geometry
+    import senerf.report
+    from senerf.data import load_scene
+
+    seen = {}
+
+    def capture(metrics, run_dir, path, angles_deg=None, ground_truth=None):
+        seen["angles"] = angles_deg
+        return path
+
+    def no_point(c2w):
+        raise ValueError("the optical axes are (nearly) parallel")
+
+    monkeypatch.setattr(senerf.report, "plot_run_summary", capture)
+    monkeypatch.setattr(senerf.geometry, "closest_point_to_axes", no_point)
+    out = tmp_path / "run"
+    assert main([str(tiny_scene), "--out", str(out), *TINY]) == 0
+    metrics = json.loads((out / "metrics.json").read_text())
+    c2w = load_scene(tiny_scene).c2w
+    z_train = c2w[metrics["train_views"], :3, 2]
+    z_test = c2w[metrics["test_views"], :3, 2]
+    cos = np.clip(z_test @ z_train.T, -1.0, 1.0)   # unit optical axes: the nearest one by the largest cosine
+    np.testing.assert_allclose(seen["angles"], np.degrees(np.arccos(cos.max(axis=1))), atol=1e-6)

@@ -88,3 +88,30 @@ def test_binned_means_by_hand():
     assert binned_means(a, p, 15.0) == ([7.5, 22.5, 37.5], [2.0, 15.0, 7.0])
     assert binned_means(np.array([45.0]), np.array([3.0]), 15.0) == ([52.5], [3.0])   # an edge opens its bin
     assert binned_means(np.array([]), np.array([]), 15.0) == ([], [])
+
+
+def test_summary_survives_a_perfect_render(tmp_path):
+    """No angles: the histogram of per-view changes skips a perfect render's inf (before: ValueError, so no
+    figure at 1c62fa8)."""
+    metrics = _run(tmp_path, n=3)
+    metrics["iterations"][1]["per_view"]["psnr"][0] = float("inf")
+    metrics["test_views"] = [7, 11, 13]
+    out = plot_run_summary(metrics, tmp_path, tmp_path / "s.png")
+    assert imageio.imread(out).shape[1] == 1200
+
+
+def test_huge_images_are_shown_strided(tmp_path):
+    from senerf.report import _shrink
+
+    image = np.arange(4032 * 3024 * 3, dtype=np.uint32).reshape(3024, 4032, 3)
+    small = _shrink(image)
+    assert small.shape == (275, 367, 3)                      # stride ceil(4032 / 400) = 11: ceil(3024 / 11)
+    assert small[1, 2].tolist() == image[11, 22].tolist()
+    assert _shrink(image[:400, :300]).shape == (400, 300, 3)  # already small: unchanged
+
+
+def test_rows_without_an_integer_iteration_are_a_value_error(tmp_path):
+    metrics = _run(tmp_path, n=2)
+    del metrics["iterations"][1]["iteration"]
+    with pytest.raises(ValueError, match="integer 'iteration'"):
+        plot_run_summary(metrics, tmp_path, tmp_path / "s.png")

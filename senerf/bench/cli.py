@@ -135,9 +135,10 @@ def _cmd_run(args: argparse.Namespace, argv: list[str]) -> int:
     results_flag = "--results" if args.results else "--out"
     results = output_file(args.results if args.results else out / "results.jsonl", results_flag)
     records, bad = _read_results(results, results_flag)   # readable (a missing file is a fresh benchmark)
-    if bad and not records:   # appending would mix our lines into someone's file (a README, a log)
-        raise InputError(f"not a senerf-bench results file ({bad} non-blank line(s), none a results line); choose another "
-                         f"{results_flag}", file=results)
+    if bad and not records and not _only_json_objects(results):
+        # appending would mix our lines into someone's file (a README, a log); a torn first line of ours is fine
+        raise InputError(f"not a senerf-bench results file ({bad} non-blank line(s), none a results line); "
+                         f"choose another {results_flag}", file=results)
     args.scenes = [str(scene_root(s)) for s in args.scenes]   # a scene's marker file names its folder
     for s in args.scenes:
         if not args.dry_run and not Path(s).is_dir():
@@ -195,6 +196,13 @@ def _os_reason(exc: OSError, path: Path | str) -> str:
     if exc.filename is not None and Path(str(exc.filename)) in Path(path).parents:
         reason += f": {exc.filename}"
     return reason
+
+
+def _only_json_objects(path: Path) -> bool:
+    """Whether every non-blank line of ``path`` starts like a JSON object (``{``), as a results file's lines
+    do even when a killed writer tore one."""
+    with open(path, "rb") as f:
+        return all(line.lstrip().startswith(b"{") for line in f if line.strip())
 
 
 def _read_results(path: Path | str, flag: str | None = None) -> tuple[list[dict], int]:

@@ -238,7 +238,7 @@ def test_output_paths_that_cannot_be_written(blender_scene, fake_fit_command, tm
 
 def test_run_refuses_to_append_to_a_file_that_is_not_results(blender_scene, fake_fit_command, tmp_path, capsys):
     """``--results README.md``: no line of it is a results line, so appending would mix our lines into the
-    user's file; refused before any fit, the file untouched (before 2078031: appended to)."""
+    user's file; refused before any fit, the file untouched (before: appended to, so at 384706f)."""
     readme = tmp_path / "README.md"
     readme.write_text("# my notes\n\nsome text\n")
     run = ["run", "--scenes", str(blender_scene), "--methods", "baseline", "--fit-command",
@@ -253,5 +253,9 @@ def test_run_refuses_to_append_to_a_file_that_is_not_results(blender_scene, fake
     # a results file with one torn line (a killed writer) still resumes
     torn = tmp_path / "torn.jsonl"
     torn.write_text(_FINISHED_LINE.rstrip("\n") + "\n{\"run_key\": \"x\", \"sta\n")
+    assert main([*run, "--results", str(torn), "--dry-run"]) == 0
+    capsys.readouterr()
+    # ... and so does one whose only line is torn (killed during its first append)
+    torn.write_text("{\"run_key\": \"x\", \"sta\n")
     assert main([*run, "--results", str(torn), "--dry-run"]) == 0
     capsys.readouterr()
