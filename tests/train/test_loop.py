@@ -180,3 +180,35 @@ def test_trains_on_cuda():
                                                rays.far)), MODEL)
     res = train_field(build_field(MODEL, seed=0), cuda, _cfg(steps=6, device="cuda"), progress=False)
     assert next(res.field.parameters()).is_cuda and math.isfinite(res.history[-1]["loss"])
+
+
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA GPU")
+def test_resume_on_cuda_continues_with_host_step_counters(tmp_path, monkeypatch):
+    """A CUDA run killed at step 8 resumes from step 5's checkpoint (loaded on the host, copied into the
+    device tensors): it finishes on the GPU, close to the uninterrupted run (CUDA's index_add_ is not
+    deterministic, so not to the bit), and Adam's step counters are CPU scalars as in a fresh run."""
+    optimizers = []
+
+    class RecordingAdam(torch.optim.Adam):
+        def __init__(self, *args, **kwargs):
+            super().__init__(*args, **kwargs)
+            optimizers.append(self)
+
+    monkeypatch.setattr(torch.optim, "Adam", RecordingAdam)
+    device = "cuda"
+    rays = _rays()
+    moved = RayBatchSource(*(t.to(device) for t in (rays.origins, rays.dirs, rays.rgb, rays.alpha, rays.near,
+                                                    rays.far)), MODEL)
+    cfg = _cfg(device=device)
+    full = train_field(build_field(MODEL, seed=1), moved, cfg, extra_loss=_zero_loss, checkpoint=tmp_path / "a.pt",
+                       progress=False)
+    _crash_at_step_8(moved, cfg, tmp_path / "b.pt")
+    resumed = train_field(build_field(MODEL, seed=1), moved, cfg, extra_loss=_zero_loss,
+                          checkpoint=tmp_path / "b.pt", progress=False)
+    assert resumed.resumed_from == 5 and len(optimizers) == 3
+    assert next(resumed.field.parameters()).device.type == device
+    steps = [s["step"] for s in optimizers[-1].state.values()]
+    assert steps and all(torch.is_tensor(s) and s.device.type == "cpu" for s in steps)
+    a, b = full.field.state_dict(), resumed.field.state_dict()
+    for k in a:
+        torch.testing.assert_close(a[k], b[k], rtol=1e-3, atol=1e-4)
