@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import json
 import math
+import re
 from dataclasses import asdict
 from pathlib import Path
 
@@ -110,6 +111,15 @@ def _check_out_dir(out: Path, overwrite: bool) -> None:
         raise InputError("already holds a scene (pass overwrite=True to replace it)", file=existing[0])
 
 
+def _remove_stale_views(folder: Path, n: int) -> None:
+    """Delete ``r_K.png`` / ``r_K_depth.npy`` with ``K >= n`` from ``folder``: views an earlier, larger export
+    wrote there (an overwrite must not leave images no transforms file lists); nothing else is touched."""
+    for path in folder.iterdir():
+        m = re.fullmatch(r"r_(0|[1-9][0-9]*)(\.png|_depth\.npy)", path.name)
+        if m and int(m.group(1)) >= n and path.is_file():
+            path.unlink()
+
+
 def export_blender_scene(out_dir, config: SceneConfig | None = None, n_train: int = 20, n_val: int = 8,
                          n_test: int = 16, width: int = 100, height: int = 100, seed: int = 0,
                          n_one_side: int = 0, camera_angle_x: float = BLENDER_CAMERA_ANGLE_X,
@@ -159,6 +169,7 @@ def export_blender_scene(out_dir, config: SceneConfig | None = None, n_train: in
             frames.append(_frame_json(split, k, c2w))
         doc = {"camera_angle_x": float(camera_angle_x), "frames": frames}
         (out / f"transforms_{split}.json").write_text(json.dumps(doc, indent=2))
+        _remove_stale_views(out / split, len(poses))
     meta = {
         "generator": "senerf.procedural",
         "scene_config": asdict(cfg),

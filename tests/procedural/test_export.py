@@ -157,3 +157,17 @@ def test_make_demo_scene(tmp_path):
     meta = json.loads((out / "procedural.json").read_text())
     assert meta["camera_seed"] == 1 and meta["scene_config"]["seed"] == 1  # the seed drives both
     assert dt < 10.0
+
+
+def test_overwrite_with_fewer_views_leaves_no_unlisted_images(tmp_path):
+    """Before, a smaller export over a larger one left r_2.png, r_3.png ... that no transforms file lists
+    (so at 3a2c1d0); a user's own file in a split folder stays."""
+    out = tmp_path / "s"
+    small = dict(n_val=0, width=8, height=6)
+    export_blender_scene(out, n_train=4, n_test=3, **small)
+    (out / "train" / "notes.txt").write_text("mine")
+    (out / "train" / "r_7_mask.png").write_bytes(b"mine too")
+    export_blender_scene(out, n_train=2, n_test=3, overwrite=True, **small)
+    assert sorted(p.name for p in (out / "train").iterdir()) == [
+        "notes.txt", "r_0.png", "r_0_depth.npy", "r_1.png", "r_1_depth.npy", "r_7_mask.png"]
+    assert len(list((out / "test").glob("r_*.png"))) == 3
