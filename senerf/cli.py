@@ -52,7 +52,12 @@ def parse_views(text: str) -> list[int]:
 
 def build_parser() -> argparse.ArgumentParser:
     """The ``senerf-fit`` argument parser (errors raise :class:`InputError`)."""
-    p = OneLineParser(prog=PROG, description="Few-shot NeRF with SE-NeRF self-training (K-Planes teacher/student).")
+    p = OneLineParser(prog=PROG, description="Few-shot NeRF with SE-NeRF self-training (K-Planes teacher/student).",
+                      epilog="Writes into --out: summary.png (quality per iteration and per test view, renders "
+                             "beside the ground truth), metrics.json, iter_K/test/ (test-view renders, K = 0 the "
+                             "teacher), iter_K/pseudo/ (pseudo views, similarity maps, reliability masks), "
+                             "run.json and checkpoints/. Run the same command again to resume. Exit status: 0 "
+                             "done, 2 bad input (nothing written), 1 internal error.")
     p.add_argument("scene", nargs="?", help="scene folder (NeRF Synthetic / instant-ngp / LLFF)")
     g = p.add_argument_group("views")
     g.add_argument("--views", type=argument_type(parse_views),

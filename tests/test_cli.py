@@ -413,3 +413,12 @@ def test_summary_angles_fall_back_to_optical_axes_when_the_cameras_have_no_commo
     z_test = c2w[metrics["test_views"], :3, 2]
     cos = np.clip(z_test @ z_train.T, -1.0, 1.0)   # unit optical axes: the nearest one by the largest cosine
     np.testing.assert_allclose(seen["angles"], np.degrees(np.arccos(cos.max(axis=1))), atol=1e-6)
+
+
+def test_help_names_every_output(capsys):
+    from senerf.cli import _OUTPUT_NAMES
+
+    assert main(["--help"]) == 0
+    text = " ".join(capsys.readouterr().out.split())
+    for name in (*_OUTPUT_NAMES, "iter_K/test/", "iter_K/pseudo/"):
+        assert name in text, name
