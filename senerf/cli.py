@@ -57,7 +57,8 @@ def build_parser() -> argparse.ArgumentParser:
                              "beside the ground truth), metrics.json, iter_K/test/ (test-view renders, K = 0 the "
                              "teacher), iter_K/pseudo/ (pseudo views, similarity maps, reliability masks), "
                              "run.json and checkpoints/. Run the same command again to resume. Exit status: 0 "
-                             "done, 2 bad input (nothing written), 1 internal error.")
+                             "done, 2 bad input (one line naming the file and field), 130 interrupted (rerun to "
+                             "resume), 1 internal error.")
     p.add_argument("scene", nargs="?", help="scene folder (NeRF Synthetic / instant-ngp / LLFF)")
     g = p.add_argument_group("views")
     g.add_argument("--views", type=argument_type(parse_views),
@@ -441,7 +442,10 @@ def _write_summary(metrics: dict, scene, train_idx, test_idx, model, out: Path) 
         center = None if scene.kind == "forward_facing" else closest_point_to_axes(scene.c2w)
         angles = nearest_view_angles(train_c2w, test_c2w, center)
     except ValueError:   # all axes parallel, or a camera at that point: the angle between optical axes
-        angles = nearest_view_angles(train_c2w, test_c2w, None)
+        try:
+            angles = nearest_view_angles(train_c2w, test_c2w, None)
+        except ValueError:
+            angles = None
     bg = (1.0, 1.0, 1.0) if model.eval_background == "white" else (0.0, 0.0, 0.0)
 
     def ground_truth(position: int) -> np.ndarray:
@@ -451,7 +455,7 @@ def _write_summary(metrics: dict, scene, train_idx, test_idx, model, out: Path) 
     try:
         return plot_run_summary(metrics, out, out / "summary.png", angles_deg=angles, ground_truth=ground_truth)
     except (OSError, ValueError, MemoryError) as exc:
-        print(f"{PROG}: warning: no summary figure ({exc or type(exc).__name__})", file=sys.stderr)
+        print(f"{PROG}: warning: no summary figure ({str(exc) or type(exc).__name__})", file=sys.stderr)
         return None
 
 

@@ -135,7 +135,7 @@ def _cmd_run(args: argparse.Namespace, argv: list[str]) -> int:
     results_flag = "--results" if args.results else "--out"
     results = output_file(args.results if args.results else out / "results.jsonl", results_flag)
     records, bad = _read_results(results, results_flag)   # readable (a missing file is a fresh benchmark)
-    if bad and not records and not _only_json_objects(results):
+    if bad and not records and not _only_torn_lines(results):
         # appending would mix our lines into someone's file (a README, a log); a torn first line of ours is fine
         raise InputError(f"not a senerf-bench results file ({bad} non-blank line(s), none a results line); "
                          f"choose another {results_flag}", file=results)
@@ -198,11 +198,23 @@ def _os_reason(exc: OSError, path: Path | str) -> str:
     return reason
 
 
-def _only_json_objects(path: Path) -> bool:
-    """Whether every non-blank line of ``path`` starts like a JSON object (``{``), as a results file's lines
-    do even when a killed writer tore one."""
+def _only_torn_lines(path: Path) -> bool:
+    """Whether every non-blank line of ``path`` is a torn results line: it starts like a JSON object (``{``)
+    but does not parse (a killed writer).  A complete JSON line that is not a results line is someone else's
+    (another tool's JSON-lines log), and so is any other text."""
     with open(path, "rb") as f:
-        return all(line.lstrip().startswith(b"{") for line in f if line.strip())
+        for line in f:
+            line = line.strip()
+            if not line:
+                continue
+            if not line.startswith(b"{"):
+                return False
+            try:
+                json.loads(line.decode("utf-8"))
+            except (UnicodeDecodeError, json.JSONDecodeError):
+                continue
+            return False
+    return True
 
 
 def _read_results(path: Path | str, flag: str | None = None) -> tuple[list[dict], int]:

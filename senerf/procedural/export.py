@@ -169,7 +169,8 @@ def export_blender_scene(out_dir, config: SceneConfig | None = None, n_train: in
             frames.append(_frame_json(split, k, c2w))
         doc = {"camera_angle_x": float(camera_angle_x), "frames": frames}
         (out / f"transforms_{split}.json").write_text(json.dumps(doc, indent=2))
-        _remove_stale_views(out / split, len(poses))
+        if overwrite:
+            _remove_stale_views(out / split, len(poses))
     meta = {
         "generator": "senerf.procedural",
         "scene_config": asdict(cfg),

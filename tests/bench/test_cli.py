@@ -259,3 +259,8 @@ def test_run_refuses_to_append_to_a_file_that_is_not_results(blender_scene, fake
     torn.write_text("{\"run_key\": \"x\", \"sta\n")
     assert main([*run, "--results", str(torn), "--dry-run"]) == 0
     capsys.readouterr()
+    # but another tool's JSON-lines log is someone else's file
+    log = tmp_path / "app.jsonl"
+    log.write_text('{"level": "info", "msg": "a"}\n{"level": "warn", "msg": "b"}\n')
+    assert main([*run, "--results", str(log), "--dry-run"]) == 2
+    assert "not a senerf-bench results file (2 non-blank line(s)" in _one_error_line(capsys)
