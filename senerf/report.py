@@ -71,29 +71,8 @@ def _read_render(run_dir: Path, iteration: int, position: int) -> np.ndarray | N
         return None
 
 
-def plot_run_summary(metrics: dict, run_dir: str | Path, path: str | Path,
-                     angles_deg: np.ndarray | None = None,
-                     ground_truth: Callable[[int], np.ndarray] | None = None, bin_deg: float = 15.0) -> Path:
-    """Draw the run's summary figure to ``path`` (PNG, atomic).
-
-    Args:
-        metrics: the run's ``metrics.json`` dict (``scene``, ``iterations`` rows with ``psnr``, ``ssim``,
-            ``reliable_fraction``, ``per_view["psnr"]``).
-        run_dir: the run's folder (its ``iter_K/test/rgb_XXX.png`` renders; missing ones are left blank).
-        path: the PNG to write.
-        angles_deg: (n_test,) degrees from each test view to its nearest training camera
-            (:func:`senerf.geometry.nearest_view_angles`), or None (no angle panel; views picked by PSNR).
-        ground_truth: ``position -> (H, W, 3)`` image in [0, 1] of test view ``position``, or None.
-        bin_deg: angle bin width of the mean lines.
-    Returns:
-        ``Path(path)``.
-    Raises:
-        ValueError: no iteration rows, a row without ``psnr`` / ``ssim`` / ``per_view["psnr"]``, or per-view /
-            angle lengths that disagree.
-    """
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
-
+def _checked_rows(metrics: dict) -> list[dict]:
+    """``metrics["iterations"]`` sorted by iteration, each with ``psnr``, ``ssim`` and ``per_view["psnr"]``."""
     rows = metrics.get("iterations") or []
     if not rows:
         raise ValueError("metrics has no iteration rows")
@@ -103,24 +82,17 @@ def plot_run_summary(metrics: dict, run_dir: str | Path, path: str | Path,
     for r in rows:
         if not ({"psnr", "ssim"} <= r.keys() and isinstance(r.get("per_view"), dict) and "psnr" in r["per_view"]):
             raise ValueError(f"iteration {r['iteration']}'s row lacks psnr, ssim or per_view.psnr")
-    first, last = rows[0], rows[-1]
-    p_first = np.asarray(first["per_view"]["psnr"], np.float64)
-    p_last = np.asarray(last["per_view"]["psnr"], np.float64)
-    if p_first.shape != p_last.shape:
-        raise ValueError(f"per-view PSNR lengths differ: {p_first.size} and {p_last.size}")
-    if angles_deg is not None:
-        angles_deg = np.asarray(angles_deg, np.float64).reshape(-1)
-        if angles_deg.shape != p_first.shape:
-            raise ValueError(f"angles_deg has {angles_deg.size} values for {p_first.size} test views")
-    run_dir = Path(run_dir)
-    compare = [first] if first is last else [first, last]
-    views = pick_views(angles_deg, p_first)
+    if len(rows[0]["per_view"]["psnr"]) != len(rows[-1]["per_view"]["psnr"]):
+        raise ValueError(f"per-view PSNR lengths differ: {len(rows[0]['per_view']['psnr'])} and "
+                         f"{len(rows[-1]['per_view']['psnr'])}")
+    return rows
 
-    fig = Figure(figsize=(12.0, 3.4 + 2.8 * len(views)), layout="constrained")
-    top, bottom = fig.subfigures(2, 1, height_ratios=[3.4, 2.8 * max(len(views), 1)])
-    ax_it, ax_ssim, ax_ang = top.subplots(1, 3, width_ratios=[1.0, 1.0, 1.6])
+
+def _draw_curves(ax_psnr, ax_ssim, rows: list[dict]) -> None:
+    """Mean PSNR and SSIM per iteration; the reliable share beside each self-training point."""
+    first, last = rows[0], rows[-1]
     its = [r["iteration"] for r in rows]
-    for ax, key, colour, label in ((ax_it, "psnr", "C0", "mean test PSNR (dB)"),
+    for ax, key, colour, label in ((ax_psnr, "psnr", "C0", "mean test PSNR (dB)"),
                                    (ax_ssim, "ssim", "C1", "mean test SSIM")):
         ax.plot(its, [r[key] for r in rows], "-o", color=colour)
         ax.set_xlabel("iteration (0 = teacher)")
@@ -130,56 +102,106 @@ def plot_run_summary(metrics: dict, run_dir: str | Path, path: str | Path,
         ax.grid(alpha=0.3)
     for r in rows:
         if r.get("reliable_fraction") is not None:
-            ax_it.annotate(f"{100 * r['reliable_fraction']:.0f} % reliable", (r["iteration"], r["psnr"]),
-                           textcoords="offset points", xytext=(0, -14), fontsize=7, color="0.35",
-                           ha="right" if r is last else "center")
-    gain = last["psnr"] - first["psnr"]
-    ax_it.set_title(f"{first['psnr']:.2f} -> {last['psnr']:.2f} dB ({gain:+.2f})", fontsize=9)
+            ax_psnr.annotate(f"{100 * r['reliable_fraction']:.0f} % reliable", (r["iteration"], r["psnr"]),
+                             textcoords="offset points", xytext=(0, -14), fontsize=7, color="0.35",
+                             ha="right" if r is last else "center")
+    ax_psnr.set_title(f"{first['psnr']:.2f} -> {last['psnr']:.2f} dB ({last['psnr'] - first['psnr']:+.2f})",
+                      fontsize=9)
     ax_ssim.set_title(f"{first['ssim']:.3f} -> {last['ssim']:.3f}", fontsize=9)
+
+
+def _draw_per_view(ax, compare: list[dict], angles_deg: np.ndarray | None, bin_deg: float) -> None:
+    """Per-view PSNR against the angle to the nearest input (first and last iteration), or without angles a
+    histogram of the per-view change."""
+    ax.set_title("per test view", fontsize=9)
     if angles_deg is not None and angles_deg.size:
         for row, colour in zip(compare, ("C0", "C3")):
             p = np.asarray(row["per_view"]["psnr"], np.float64)
-            ax_ang.scatter(angles_deg, p, s=6, alpha=0.25, color=colour)
-            ax_ang.plot(*binned_means(angles_deg, p, bin_deg), "-o", ms=3, color=colour,
-                        label=f"iteration {row['iteration']}")
-        ax_ang.set_xlabel("angle to the nearest training view (degrees)")
-        ax_ang.set_ylabel("test-view PSNR (dB)")
-        ax_ang.legend(fontsize=8)
-        ax_ang.grid(alpha=0.3)
-        ax_ang.set_title("per test view", fontsize=9)
-    else:
-        change = p_last - p_first
-        change = change[np.isfinite(change)]   # a perfect render's PSNR is inf
-        lo, hi = (float(change.min()), float(change.max())) if change.size else (0.0, 0.0)
-        if hi - lo < 1e-3:   # (nearly) one value: numpy cannot split a zero-width range into 20 bins
-            lo, hi = lo - 0.5, hi + 0.5
-        ax_ang.hist(change, bins=20, range=(lo, hi), color="C0")
-        ax_ang.set_xlabel(f"PSNR change per test view, iteration {last['iteration']} - 0 (dB)")
-        ax_ang.set_ylabel("test views")
-        ax_ang.set_title("per test view", fontsize=9)
+            ax.scatter(angles_deg, p, s=6, alpha=0.25, color=colour)
+            ax.plot(*binned_means(angles_deg, p, bin_deg), "-o", ms=3, color=colour,
+                    label=f"iteration {row['iteration']}")
+        ax.set_xlabel("angle to the nearest training view (degrees)")
+        ax.set_ylabel("test-view PSNR (dB)")
+        ax.legend(fontsize=8)
+        ax.grid(alpha=0.3)
+        return
+    change = (np.asarray(compare[-1]["per_view"]["psnr"], np.float64)
+              - np.asarray(compare[0]["per_view"]["psnr"], np.float64))
+    change = change[np.isfinite(change)]   # a perfect render's PSNR is inf
+    lo, hi = (float(change.min()), float(change.max())) if change.size else (0.0, 0.0)
+    if hi - lo < 1e-3:   # (nearly) one value: numpy cannot split a zero-width range into 20 bins
+        lo, hi = lo - 0.5, hi + 0.5
+    ax.hist(change, bins=20, range=(lo, hi), color="C0")
+    ax.set_xlabel(f"PSNR change per test view, iteration {compare[-1]['iteration']} - 0 (dB)")
+    ax.set_ylabel("test views")
+
+
+def _draw_views(subfig, metrics: dict, views: list[int], compare: list[dict], run_dir: Path,
+                angles_deg: np.ndarray | None, ground_truth: Callable[[int], np.ndarray] | None) -> None:
+    """One row per test view position in ``views``: ground truth (when given), then each compared iteration's
+    render, titled with the image index, its angle and each render's PSNR."""
+    n_cols = (ground_truth is not None) + len(compare)
+    axes = np.asarray(subfig.subplots(len(views), n_cols, squeeze=False))
+    test_views = metrics.get("test_views")
+    n_test = len(compare[0]["per_view"]["psnr"])
+    for i, pos in enumerate(views):
+        images = ([np.clip(np.asarray(ground_truth(pos), np.float32), 0.0, 1.0)] if ground_truth else [])
+        images += [_read_render(run_dir, r["iteration"], pos) for r in compare]
+        name = (f"image {test_views[pos]}" if isinstance(test_views, list) and len(test_views) == n_test
+                else f"test view {pos}")
+        titles = ([f"ground truth ({name})"] if ground_truth else [])
+        titles += [f"iteration {r['iteration']}: {r['per_view']['psnr'][pos]:.2f} dB" for r in compare]
+        if angles_deg is not None:
+            titles[0] += f", {angles_deg[pos]:.0f} deg"
+        for ax, image, title in zip(axes[i], images, titles):
+            if image is not None:
+                ax.imshow(_shrink(image))
+            ax.set_title(title, fontsize=8)
+            ax.set_axis_off()
+
+
+def plot_run_summary(metrics: dict, run_dir: str | Path, path: str | Path,
+                     angles_deg: np.ndarray | None = None,
+                     ground_truth: Callable[[int], np.ndarray] | None = None, bin_deg: float = 15.0) -> Path:
+    """Draw the run's summary figure to ``path`` (PNG, atomic).
+
+    Args:
+        metrics: the run's ``metrics.json`` dict (``scene``, ``test_views``, ``iterations`` rows with
+            ``iteration``, ``psnr``, ``ssim``, ``reliable_fraction``, ``per_view["psnr"]``).
+        run_dir: the run's folder (its ``iter_K/test/rgb_XXX.png`` renders; missing ones are left blank).
+        path: the PNG to write.
+        angles_deg: (n_test,) degrees from each test view to its nearest training camera
+            (:func:`senerf.geometry.nearest_view_angles`), or None (no angle panel; views picked by PSNR).
+        ground_truth: ``position -> (H, W, 3)`` image in [0, 1] of test view ``position``, or None.
+        bin_deg: angle bin width of the mean lines.
+    Returns:
+        ``Path(path)``.
+    Raises:
+        ValueError: no iteration rows, a row without an integer ``iteration``, ``psnr``, ``ssim`` or
+            ``per_view["psnr"]``, or per-view / angle lengths that disagree.
+    """
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    rows = _checked_rows(metrics)
+    first, last = rows[0], rows[-1]
+    compare = [first] if first is last else [first, last]
+    p_first = np.asarray(first["per_view"]["psnr"], np.float64)
+    if angles_deg is not None:
+        angles_deg = np.asarray(angles_deg, np.float64).reshape(-1)
+        if angles_deg.shape != p_first.shape:
+            raise ValueError(f"angles_deg has {angles_deg.size} values for {p_first.size} test views")
+    views = pick_views(angles_deg, p_first)
+
+    fig = Figure(figsize=(12.0, 3.4 + 2.8 * len(views)), layout="constrained")
+    top, bottom = fig.subfigures(2, 1, height_ratios=[3.4, 2.8 * max(len(views), 1)])
+    ax_psnr, ax_ssim, ax_view = top.subplots(1, 3, width_ratios=[1.0, 1.0, 1.6])
+    _draw_curves(ax_psnr, ax_ssim, rows)
+    _draw_per_view(ax_view, compare, angles_deg, bin_deg)
     top.suptitle(f"{metrics.get('scene', '')}: {len(rows) - 1} self-training iteration(s), {len(p_first)} "
                  f"test views", fontsize=10)
-
     if views:
-        cols = (["ground truth"] if ground_truth is not None else []) + [f"iteration {r['iteration']}"
-                                                                         for r in compare]
-        axes = np.asarray(bottom.subplots(len(views), len(cols), squeeze=False))
-        for i, pos in enumerate(views):
-            images = ([np.clip(np.asarray(ground_truth(pos), np.float32), 0.0, 1.0)] if ground_truth else [])
-            images += [_read_render(run_dir, r["iteration"], pos) for r in compare]
-            images = [None if im is None else _shrink(im) for im in images]
-            test_views = metrics.get("test_views")
-            name = (f"image {test_views[pos]}" if isinstance(test_views, list) and len(test_views) == len(p_first)
-                    else f"test view {pos}")
-            titles = ([f"ground truth ({name})"] if ground_truth else [])
-            titles += [f"iteration {r['iteration']}: {r['per_view']['psnr'][pos]:.2f} dB" for r in compare]
-            if angles_deg is not None:
-                titles[0] += f", {angles_deg[pos]:.0f} deg"
-            for ax, image, title in zip(axes[i], images, titles):
-                if image is not None:
-                    ax.imshow(image)
-                ax.set_title(title, fontsize=8)
-                ax.set_axis_off()
+        _draw_views(bottom, metrics, views, compare, Path(run_dir), angles_deg, ground_truth)
     FigureCanvasAgg(fig)
     buf = io.BytesIO()
     fig.savefig(buf, dpi=100, format="png")
