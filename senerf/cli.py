@@ -20,7 +20,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import re
 import shutil
 import sys
 import time
@@ -206,12 +205,15 @@ def _check_model_fits(model, device: str = "cpu") -> None:
 
 def _check_device(device: str) -> str:
     """``device`` when torch can use it: ``cpu``, ``cuda`` or ``cuda:N`` with an N this machine has (torch is
-    imported only for a CUDA name)."""
+    imported only for a name other than ``cpu``)."""
     if device == "cpu":
         return device
-    if not re.fullmatch(r"cuda(:(0|[1-9][0-9]*))?", device):
-        raise InputError(f"expected cpu, cuda or cuda:N, got {device!r}", field="--device")
     import torch
+
+    from senerf.train.config import is_device_name
+
+    if not is_device_name(device):
+        raise InputError(f"expected cpu, cuda or cuda:N, got {device!r}", field="--device")
 
     if not torch.cuda.is_available():
         raise InputError("CUDA requested but torch sees no GPU (use --device cpu)", field="--device")
@@ -435,6 +437,7 @@ def _write_summary(metrics: dict, scene, train_idx, test_idx, model, out: Path) 
 
     from senerf.geometry import closest_point_to_axes, nearest_view_angles
     from senerf.report import plot_run_summary
+    from senerf.train import eval_images
 
     train_c2w, test_c2w = scene.c2w[np.asarray(train_idx)], scene.c2w[np.asarray(test_idx)]
     try:
@@ -446,11 +449,8 @@ def _write_summary(metrics: dict, scene, train_idx, test_idx, model, out: Path) 
             angles = nearest_view_angles(train_c2w, test_c2w, None)
         except ValueError:
             angles = None
-    bg = (1.0, 1.0, 1.0) if model.eval_background == "white" else (0.0, 0.0, 0.0)
-
     def ground_truth(position: int) -> np.ndarray:
-        i = int(test_idx[position])
-        return scene.composite(bg, [i])[0] if scene.alpha is not None else scene.rgb[i]
+        return eval_images(scene, [test_idx[position]], model)[0]
 
     try:
         return plot_run_summary(metrics, out, out / "summary.png", angles_deg=angles, ground_truth=ground_truth)

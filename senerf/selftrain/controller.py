@@ -40,8 +40,8 @@ import torch
 
 from .. import __version__, geometry
 from ..errors import InputError
-from ..train import (atomic_write_text, build_field, camera_rays, config_to_dict, differences_text, evaluate,
-                     load_checkpoint, load_state_keeping_box, make_occupancy, render_views, save_checkpoint,
+from ..train import (atomic_write_text, build_field, camera_rays, config_to_dict, differences_text, eval_images,
+                     evaluate, load_checkpoint, load_state_keeping_box, make_occupancy, render_views, save_checkpoint,
                      settings_differences, train_field, write_png)
 from .distill import DistillationLoss, DistillConfig, PseudoRays, prior_weights, unified_prior_weights
 from .features import FEATURE_NAMES, known_view_features, make_feature_extractor
@@ -204,14 +204,8 @@ class PseudoLabels:
         return float(self.weights[fg].mean()) if fg.any() else float("nan")
 
 
-def known_images(scene, idx, model) -> np.ndarray:
-    """The real images ``idx`` as the teacher sees them at evaluation: (n, H, W, 3), RGBA composited onto
-    ``model.eval_background``."""
-    idx = np.asarray(idx, dtype=np.int64).reshape(-1)
-    if scene.alpha is None:
-        return np.asarray(scene.rgb[idx], dtype=np.float32)
-    bg = (1.0, 1.0, 1.0) if model.eval_background == "white" else (0.0, 0.0, 0.0)
-    return np.asarray(scene.composite(bg, idx), dtype=np.float32)  # only these views, not the scene's
+#: The real images ``idx`` as the teacher sees them at evaluation (``senerf.train.eval_images``).
+known_images = eval_images
 
 
 def estimate_reliability(teacher, occupancy, model, scene, train_idx, pseudo_c2w: np.ndarray, extractor,
@@ -388,20 +382,18 @@ def _write_pseudo_pngs(folder: Path, labels: PseudoLabels) -> None:
 
 
 def _sample_pseudo_poses(scene, train_idx, cfg: SelfTrainConfig, iteration: int):
-    """The pseudo cameras of ``iteration``: ``(c2w (P, 4, 4) float64, intrinsics)``.
+    """The pseudo cameras of ``iteration``: ``(c2w (P, 4, 4) float64, intrinsics (P,) tuple)``.
 
     Each pseudo view is its source input view carried rigidly (``sample_pseudo_views``) and keeps that view's
-    intrinsics: one ``Intrinsics`` when the known views share theirs, else a tuple of P.
+    intrinsics (``camera_rays`` and ``render_views`` cast equal ones exactly as one shared ``Intrinsics``).
     """
     rng = np.random.default_rng([cfg.seed, iteration])
     train_idx = np.asarray(train_idx, dtype=np.int64).reshape(-1)
     known_c2w = np.asarray(scene.c2w[train_idx], dtype=np.float64)
     c2w, source = geometry.sample_pseudo_views(known_c2w, cfg.pseudo_range(iteration),
                                                cfg.n_pseudo_per_input * known_c2w.shape[0], rng)
-    known_intr = [scene.intrinsics_all[i] for i in train_idx]
-    if all(k == known_intr[0] for k in known_intr):
-        return np.asarray(c2w, dtype=np.float64), known_intr[0]
-    return np.asarray(c2w, dtype=np.float64), tuple(known_intr[int(s)] for s in source)
+    return (np.asarray(c2w, dtype=np.float64),
+            tuple(scene.intrinsics_all[int(train_idx[s])] for s in source))
 
 
 def _selftrain_identity(selftrain: dict) -> dict:

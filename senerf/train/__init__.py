@@ -9,7 +9,7 @@ from .checkpoint import atomic_write_bytes, atomic_write_text, load_checkpoint, 
 from .config import (PRESETS, ModelConfig, TrainConfig, build_field, camera_aabb, choose_model,
                      config_to_dict, differences_text, preset_train_config,
                      settings_differences)
-from .evaluate import depth_to_color, evaluate, render_views, write_png
+from .evaluate import depth_to_color, eval_images, evaluate, render_views, write_png
 from .loop import TrainResult, background_color, load_state_keeping_box, lr_factor, make_occupancy, train_field
 from .metrics import LPIPS_UNAVAILABLE, mse, psnr, ssim
 from .rays import RayBatchSource, camera_rays, per_view_intrinsics, ray_aabb_bounds, ray_dist_to_z_depth
@@ -19,7 +19,7 @@ __all__ = [
     "camera_aabb", "config_to_dict", "settings_differences", "differences_text",
     "RayBatchSource", "camera_rays", "per_view_intrinsics", "ray_aabb_bounds", "ray_dist_to_z_depth",
     "train_field", "TrainResult", "lr_factor", "make_occupancy", "background_color", "load_state_keeping_box",
-    "evaluate", "render_views", "depth_to_color", "write_png",
+    "evaluate", "eval_images", "render_views", "depth_to_color", "write_png",
     "psnr", "ssim", "mse", "LPIPS_UNAVAILABLE",
     "save_checkpoint", "load_checkpoint", "atomic_write_bytes", "atomic_write_text",
 ]

@@ -35,6 +35,12 @@ _BACKGROUNDS = ("random", "white", "black")
 _FIELDS = ("kplanes", "nerf")
 
 
+def is_device_name(name) -> bool:
+    """Whether ``name`` is a device senerf trains on: ``cpu``, ``cuda`` or ``cuda:N`` (no sign, no leading
+    zero: the names ``torch.device`` accepts; whether that GPU exists is checked where it is used)."""
+    return isinstance(name, str) and (name == "cpu" or re.fullmatch(r"cuda(:(0|[1-9][0-9]*))?", name) is not None)
+
+
 @dataclass(frozen=True)
 class TrainConfig:
     """Optimisation settings of one training run (teacher or student).
@@ -84,7 +90,7 @@ class TrainConfig:
             raise InputError(f"must be >= 0, got {self.tv_weight!r}", field="tv_weight")
         if not isinstance(self.seed, int) or isinstance(self.seed, bool):
             raise InputError(f"must be an integer, got {self.seed!r}", field="seed")
-        if not (self.device == "cpu" or re.fullmatch(r"cuda(:(0|[1-9][0-9]*))?", str(self.device))):
+        if not is_device_name(self.device):
             raise InputError(f"must be 'cpu', 'cuda' or 'cuda:N', got {self.device!r}", field="device")
 
 

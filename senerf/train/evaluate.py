@@ -14,11 +14,20 @@ from .config import ModelConfig
 from .metrics import LPIPS_UNAVAILABLE, psnr, ssim
 from .rays import camera_rays, per_view_intrinsics, ray_dist_to_z_depth
 
-__all__ = ["render_views", "evaluate", "depth_to_color", "write_png"]
+__all__ = ["render_views", "evaluate", "eval_images", "depth_to_color", "write_png"]
 
 
 def _background(name: str) -> tuple[float, float, float]:
     return (1.0, 1.0, 1.0) if name == "white" else (0.0, 0.0, 0.0)
+
+
+def eval_images(scene, idx, model: ModelConfig) -> np.ndarray:
+    """The real images ``idx (n,)`` as renders are scored against them: ``(n, H, W, 3)`` float32, RGBA
+    composited onto ``model.eval_background`` (only these views are composited, not the whole scene)."""
+    idx = np.asarray(idx, dtype=np.int64).reshape(-1)
+    if scene.alpha is None:
+        return np.asarray(scene.rgb[idx], dtype=np.float32)
+    return np.asarray(scene.composite(_background(model.eval_background), idx), dtype=np.float32)
 
 
 @torch.no_grad()
@@ -146,7 +155,7 @@ def evaluate(field, scene, test_idx, out_dir: str | Path | None, model: ModelCon
     test_idx = np.asarray(test_idx, dtype=np.int64).reshape(-1)
     if test_idx.size == 0:
         raise ValueError("no test views")
-    gt = scene.composite(_background(model.eval_background)) if scene.alpha is not None else scene.rgb
+    gt = eval_images(scene, test_idx, model)
     out = None if out_dir is None else Path(out_dir)
     psnrs, ssims = [], []
     views = range(test_idx.size)
@@ -159,8 +168,8 @@ def evaluate(field, scene, test_idx, out_dir: str | Path | None, model: ModelCon
         img = render_views(field, model, scene.intrinsics_all[i], scene.c2w[i], occupancy=occupancy,
                            chunk=chunk, device=device)
         rgb = np.clip(img["rgb"][0], 0.0, 1.0)
-        psnrs.append(psnr(rgb, gt[i]))
-        ssims.append(ssim(rgb, gt[i]))
+        psnrs.append(psnr(rgb, gt[k]))
+        ssims.append(ssim(rgb, gt[k]))
         if out is not None:
             write_png(out / f"rgb_{k:03d}.png", rgb)
             bg = 1.0 if model.eval_background == "white" else 0.0

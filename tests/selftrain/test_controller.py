@@ -473,8 +473,8 @@ def test_known_views_keep_their_own_intrinsics(monkeypatch):
 
 def test_pseudo_views_keep_their_source_views_intrinsics(tiny_scene, tmp_path, monkeypatch):
     """Per-frame intrinsics: each pseudo view is its source input carried rigidly, so it keeps that input's
-    K (source ``k % m``, the sampler's documented round robin); shared intrinsics stay one ``Intrinsics``.
-    Before, every pseudo view used image 0's K (so at eff04c6)."""
+    K (source ``k % m``, the sampler's documented round robin).  Before, every pseudo view used image 0's K
+    (so at eff04c6)."""
     from types import SimpleNamespace
 
     from senerf.train import TrainConfig, choose_model
@@ -490,7 +490,7 @@ def test_pseudo_views_keep_their_source_views_intrinsics(tiny_scene, tmp_path, m
     assert intr == (k1, k0, k1, k0, k1, k0)
     same = SimpleNamespace(intrinsics=k0, intrinsics_all=(k1, k1, k1), c2w=c2w)
     poses_same, intr_same = controller_mod._sample_pseudo_poses(same, [1, 2], cfg, 1)
-    assert intr_same == k1 and np.array_equal(poses_same, poses)
+    assert intr_same == (k1,) * 6 and np.array_equal(poses_same, poses)
 
     # the controller hands them to the reliability estimate
     seen = {}

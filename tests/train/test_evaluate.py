@@ -93,3 +93,22 @@ def test_depth_to_color_near_is_red_far_is_blue_and_empty_fades():
     np.testing.assert_array_equal(img[0, 1], np.round(far * 255))
     np.testing.assert_array_equal(img[0, 2], [255, 255, 255])
     np.testing.assert_array_equal(img[0, 3], np.round((0.5 * mid + 0.5) * 255))
+
+
+def test_eval_images_composites_only_the_views_asked_for():
+    from senerf.data import Scene
+    from senerf.train import eval_images
+
+    c2w = np.stack([look_at(np.array([0.0, -4.0, 0.0]), np.zeros(3))] * 3)
+    rgb = np.stack([np.full((12, 14, 3), v, np.float32) for v in (0.2, 0.4, 0.6)])
+    alpha = np.stack([np.full((12, 14), a, np.float32) for a in (0.0, 0.5, 1.0)])
+    scene = Scene(name="e", root=".", rgb=rgb, alpha=alpha, intrinsics=K, intrinsics_all=(K, K, K), c2w=c2w,
+                  image_paths=("a.png", "b.png", "c.png"))
+    white = eval_images(scene, [2, 1], _model("white"))
+    assert white.shape == (2, 12, 14, 3) and white.dtype == np.float32
+    np.testing.assert_allclose(white[0], 0.6)                       # opaque: its colour
+    np.testing.assert_allclose(white[1], 0.4 * 0.5 + 1.0 * 0.5)     # half on white: 0.7
+    np.testing.assert_allclose(eval_images(scene, [0, 1], _model("black"))[:, 0, 0, 0], [0.0, 0.2])
+    opaque = Scene(name="o", root=".", rgb=rgb, alpha=None, intrinsics=K, intrinsics_all=(K, K, K), c2w=c2w,
+                   image_paths=("a.png", "b.png", "c.png"))
+    np.testing.assert_array_equal(eval_images(opaque, [1], _model("white"))[0], rgb[1])   # no alpha: as loaded
