@@ -28,7 +28,7 @@ import warnings
 from pathlib import Path
 
 from senerf import __version__
-from senerf.cliargs import SEED_MAX, OneLineParser, argument_type, float_flag, int_flag
+from senerf.cliargs import SEED_MAX, OneLineParser, argument_type, check_device, float_flag, int_flag
 from senerf.errors import InputError
 
 __all__ = ["main", "build_parser", "parse_views"]
@@ -203,31 +203,11 @@ def _check_model_fits(model, device: str = "cpu") -> None:
                              f"{gpu / 2**30:.0f} GiB", field="--resolution")
 
 
-def _check_device(device: str) -> str:
-    """``device`` when torch can use it: ``cpu``, ``cuda`` or ``cuda:N`` with an N this machine has (torch is
-    imported only for a name other than ``cpu``)."""
-    if device == "cpu":
-        return device
-    import torch
-
-    from senerf.train.config import is_device_name
-
-    if not is_device_name(device):
-        raise InputError(f"expected cpu, cuda or cuda:N, got {device!r}", field="--device")
-
-    if not torch.cuda.is_available():
-        raise InputError("CUDA requested but torch sees no GPU (use --device cpu)", field="--device")
-    index = torch.device(device).index
-    if index is not None and index >= torch.cuda.device_count():
-        raise InputError(f"{device} requested but torch sees {torch.cuda.device_count()} GPU(s) "
-                         f"(cuda:0 ... cuda:{torch.cuda.device_count() - 1})", field="--device")
-    return device
-
-
 #: Keys every run.json that senerf-fit writes has: how a folder is recognised as one of its runs.
 _RUN_KEYS = frozenset({"scene_dir", "format", "protocol", "train", "model"})
-#: What senerf-fit writes into its folder (and ``--overwrite`` removes from a folder of another run).
-_OUTPUT_NAMES = ("checkpoints", "metrics.json", "summary.png", _RUN_FILE)
+#: What senerf-fit writes into its folder (and ``--overwrite`` removes from a folder of another run);
+#: ``render`` holds senerf-render's fly-throughs of the run's fields, stale once the run is replaced.
+_OUTPUT_NAMES = ("checkpoints", "metrics.json", "summary.png", "render", _RUN_FILE)
 
 
 def _comparable(identity: dict) -> dict:
@@ -345,7 +325,7 @@ def _selftrain_available():
 
 
 def _run(args, argv) -> int:
-    device = _check_device(args.device)   # before the demo writes its scene
+    device = check_device(args.device)   # before the demo writes its scene
     if args.demo:
         try:
             from senerf.demo import run_demo

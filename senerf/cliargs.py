@@ -10,7 +10,7 @@ import argparse
 
 from senerf.errors import InputError
 
-__all__ = ["OneLineParser", "argument_type", "int_flag", "float_flag", "SEED_MAX"]
+__all__ = ["OneLineParser", "argument_type", "int_flag", "float_flag", "check_device", "SEED_MAX"]
 
 #: Largest seed either command accepts (torch generators take a signed 64-bit seed).
 SEED_MAX = 2**63 - 1
@@ -66,3 +66,23 @@ def float_flag(flag: str, minimum: float | None = None, positive: bool = False, 
             raise InputError(f"expected a finite number{bound}, got {text!r}", field=flag)
         return value
     return argument_type(convert)
+
+
+def check_device(device: str, flag: str = "--device") -> str:
+    """``device`` when torch can use it: ``cpu``, ``cuda`` or ``cuda:N`` with an N this machine has; else an
+    :class:`InputError` naming ``flag`` (torch is imported only for a name other than ``cpu``)."""
+    if device == "cpu":
+        return device
+    import torch
+
+    from senerf.train.config import is_device_name
+
+    if not is_device_name(device):
+        raise InputError(f"expected cpu, cuda or cuda:N, got {device!r}", field=flag)
+    if not torch.cuda.is_available():
+        raise InputError("CUDA requested but torch sees no GPU (use --device cpu)", field=flag)
+    index = torch.device(device).index
+    if index is not None and index >= torch.cuda.device_count():
+        raise InputError(f"{device} requested but torch sees {torch.cuda.device_count()} GPU(s) "
+                         f"(cuda:0 ... cuda:{torch.cuda.device_count() - 1})", field=flag)
+    return device

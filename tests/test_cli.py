@@ -294,11 +294,11 @@ def test_malformed_devices_are_refused_by_name(device, monkeypatch):
     run.json was written (so at 9bf94cf)."""
     import torch
 
-    from senerf.cli import _check_device
+    from senerf.cliargs import check_device
 
     monkeypatch.setattr(torch.cuda, "is_available", lambda: True)   # the name is wrong whatever the machine
     with pytest.raises(InputError, match=r"--device.*expected cpu, cuda or cuda:N"):
-        _check_device(device)
+        check_device(device)
 
 
 def test_cuda_ordinal_and_gpu_memory_are_checked_before_anything_is_written(tiny_scene, tmp_path, monkeypatch,
@@ -307,13 +307,14 @@ def test_cuda_ordinal_and_gpu_memory_are_checked_before_anything_is_written(tiny
 
     import torch
 
-    from senerf.cli import _check_device, _check_model_fits
+    from senerf.cli import _check_model_fits
+    from senerf.cliargs import check_device
 
     monkeypatch.setattr(torch.cuda, "is_available", lambda: True)
     monkeypatch.setattr(torch.cuda, "device_count", lambda: 2)
-    assert _check_device("cuda") == "cuda" and _check_device("cuda:1") == "cuda:1"
+    assert check_device("cuda") == "cuda" and check_device("cuda:1") == "cuda:1"
     with pytest.raises(InputError, match=r"cuda:2 requested but torch sees 2 GPU\(s\) \(cuda:0 \.\.\. cuda:1\)"):
-        _check_device("cuda:2")
+        check_device("cuda:2")
     # GPU memory: the planes (rows x features float32) times 9 against the card's total
     from senerf.fields.interp import plane_layout
 

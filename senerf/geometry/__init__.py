@@ -1,4 +1,5 @@
-"""Camera geometry in NumPy: intrinsics, poses, spherical placement, rays, projection and depth warps.
+"""Camera geometry in NumPy: intrinsics, poses, spherical placement, camera paths, rays, projection and depth
+warps.
 
 Importing this package never imports torch; it uses NumPy and OpenCV (``cv2.transform`` in ``project``).
 
@@ -21,6 +22,7 @@ from .poses import (
     orthonormalize,
     validate_rigid,
 )
+from .paths import orbit_path, spiral_focus_depth, spiral_path
 from .projection import project, projection_matrix, unproject
 from .rays import pixel_centers, pixel_rays, rays_from_pixels
 from .spherical import (
@@ -49,6 +51,9 @@ __all__ = [
     "nearest_view_angles",
     "closest_point_to_axes",
     "sample_pseudo_views",
+    "orbit_path",
+    "spiral_path",
+    "spiral_focus_depth",
     "default_up",
     "pixel_centers",
     "pixel_rays",

@@ -11,7 +11,7 @@ import pytest
 
 import senerf.geometry as geometry
 
-MODULES = ["intrinsics", "poses", "spherical", "rays", "projection", "warp"]
+MODULES = ["intrinsics", "poses", "spherical", "paths", "rays", "projection", "warp"]
 
 
 def test_import_does_not_import_torch():
@@ -33,8 +33,8 @@ def test_docstring_examples(name):
 
 def _pose_users():
     """Every public function that uses a pose's rotation as one, called with pose ``p``."""
-    from senerf.geometry import (Intrinsics, pixel_rays, project, projection_matrix, rays_from_pixels,
-                                 reproject, sample_pseudo_views, unproject)
+    from senerf.geometry import (Intrinsics, orbit_path, pixel_rays, project, projection_matrix, rays_from_pixels,
+                                 reproject, sample_pseudo_views, spiral_path, unproject)
 
     k = Intrinsics(20.0, 20.0, 8.0, 6.0, 16, 12)
     depth = np.full((12, 16), 3.0)
@@ -49,6 +49,8 @@ def _pose_users():
         "reproject c2w_dst": lambda p: reproject(depth, k, good, k, p),
         "sample_pseudo_views": lambda p: sample_pseudo_views(p[None], 5.0, 2, np.random.default_rng(0),
                                                              center=np.zeros(3)),
+        "orbit_path": lambda p: orbit_path(p[None], 3, center=np.zeros(3), up=(0.0, 1.0, 0.0)),
+        "spiral_path": lambda p: spiral_path(p[None], 3, focus_depth=2.0),
     }
 
 
@@ -61,7 +63,7 @@ def test_scaled_or_reflected_poses_are_refused(name):
     pose[:3, 3] = [0.0, 0.0, -1.0]
     call(pose)                                  # a rigid pose is fine
     call(pose + np.diag([4e-4, 0.0, 0.0, 0.0]))  # and so is float noise within POSE_ATOL
-    arg = name.split()[1] if " " in name else ("input_c2w" if name == "sample_pseudo_views" else "c2w")
+    arg = name.split()[1] if " " in name else ("input_c2w" if name in ("sample_pseudo_views", "orbit_path", "spiral_path") else "c2w")
     with pytest.raises(ValueError, match=rf"{arg}.*rotation not orthonormal"):
         call(pose @ np.diag([2.0, 2.0, 2.0, 1.0]))
     with pytest.raises(ValueError, match=rf"{arg}.*reflection"):

@@ -1,0 +1,200 @@
+"""The senerf-render command (senerf/flythrough.py): fly-throughs of a finished senerf-fit run."""
+
+from __future__ import annotations
+
+import json
+import shutil
+import types
+
+import imageio.v3 as iio
+import numpy as np
+import pytest
+
+from senerf.cli import main as fit
+from senerf.flythrough import load_fitted_run, main, path_cameras, render_frames
+
+FIT = ["--steps", "24", "--batch-rays", "128", "--samples", "12", "--resolution", "8", "--quiet"]
+
+
+@pytest.fixture(scope="module")
+def runs(tmp_path_factory):
+    """A tiny scene, its baseline-only run and a one-iteration self-training run."""
+    from senerf.procedural.export import export_blender_scene
+
+    root = tmp_path_factory.mktemp("fly")
+    scene = export_blender_scene(root / "scene", n_train=5, n_val=0, n_test=3, width=16, height=16, seed=0)
+    base, selftrained = root / "base", root / "st"
+    assert fit([str(scene), "--protocol", "all", "--out", str(base), "--iterations", "0", *FIT]) == 0
+    assert fit([str(scene), "--views", "0,1,3", "--out", str(selftrained), "--iterations", "1", "--pseudo-views", "1",
+                "--features", "daisy", *FIT]) == 0
+    return types.SimpleNamespace(scene=scene, base=base, st=selftrained)
+
+
+def _error(capsys) -> str:
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("senerf-render: error: "), err
+    return err[0]
+
+
+@pytest.mark.parametrize("which, iteration", [("base", None), ("st", 0), ("st", 1)])
+def test_the_test_path_reproduces_the_renders_senerf_fit_scored(runs, tmp_path, which, iteration):
+    """Same field, cameras and renderer as the fit's evaluation: the PNGs agree to the last bit."""
+    run = getattr(runs, which)
+    out = tmp_path / "t"
+    flags = [] if iteration is None else ["--iteration", str(iteration)]
+    assert main([str(run), "--path", "test", "--out", str(out), "--quiet", *flags]) == 0
+    k = 0 if iteration is None else iteration
+    scored = sorted((run / f"iter_{k}" / "test").glob("rgb_*.png"))
+    assert len(scored) == 3
+    for png in scored:
+        np.testing.assert_array_equal(iio.imread(out / png.name), iio.imread(png))
+    record = json.loads((out / "path.json").read_text())
+    assert record["iteration"] == k and record["path"] == "test" and len(record["c2w"]) == 3
+
+
+def test_default_orbit_writes_frames_gifs_and_the_poses(runs, capsys):
+    from senerf.data import load_scene
+    from senerf.geometry import orbit_path
+
+    assert main([str(runs.st), "--frames", "6", "--fps", "10", "--quiet"]) == 0
+    out = runs.st / "render" / "orbit_iter1"          # the last finished iteration, the object default
+    assert f"in {out}" in capsys.readouterr().out
+    record = json.loads((out / "path.json").read_text())
+    scene = load_scene(runs.scene)
+    np.testing.assert_allclose(record["c2w"], orbit_path(scene.c2w[[0, 1, 3]], 6), atol=1e-12)
+    k = scene.intrinsics_all[0]
+    assert record["intrinsics"] == [[k.fx, k.fy, k.cx, k.cy, 16, 16]] * 6
+    for name in ("rgb", "depth"):
+        assert len(list(out.glob(f"{name}_*.png"))) == 6
+        gif = iio.imread(out / f"{name}.gif", index=None)
+        assert gif.shape[:3] == (6, 16, 16)
+        assert iio.immeta(out / f"{name}.gif")["duration"] == 100
+    np.testing.assert_array_equal(iio.imread(out / f"rgb_000.png"), iio.imread(out / "rgb.gif", index=0)[..., :3])
+
+
+def test_scale_elevation_and_one_depth_range_for_the_whole_path(runs, tmp_path):
+    run = load_fitted_run(runs.base)
+    c2w, ks = path_cameras(run, "orbit", 4, scale=2.0, elevation=60.0)
+    assert ks[0].size == (32, 32)
+    from senerf.geometry import spherical_from_pose, closest_point_to_axes, default_up
+
+    inputs = run.scene.c2w[run.train_idx]
+    el = spherical_from_pose(c2w, closest_point_to_axes(inputs), default_up(inputs))[1]
+    np.testing.assert_allclose(el, 60.0, atol=1e-9)
+    frames = render_frames(run, c2w, ks, progress=False)
+    assert frames["rgb"].shape == (4, 32, 32, 3) and frames["rgb"].dtype == np.uint8
+    assert frames["depth"].shape == (4, 32, 32, 3)
+
+
+def test_one_depth_colour_range_for_the_whole_path(runs, monkeypatch):
+    """The same depth gets the same colour in every frame (per-frame ranges would give 1.5 two colours)."""
+    import senerf.train
+
+    z = np.stack([np.linspace(1.0, 2.0, 64).reshape(8, 8), np.linspace(1.0, 4.0, 64).reshape(8, 8)]).astype(np.float32)
+    z[0, 0, 7] = z[1, 0, 5] = 1.5
+    fake = dict(rgb=np.zeros((2, 8, 8, 3), np.float32), z_depth=z, acc=np.ones((2, 8, 8), np.float32))
+    monkeypatch.setattr(senerf.train, "render_views", lambda *a, **k: fake)
+    run = types.SimpleNamespace(field=None, model=types.SimpleNamespace(eval_background="white"), occupancy=None)
+    depth = render_frames(run, np.zeros((2, 4, 4)), None, progress=False)["depth"]
+    np.testing.assert_array_equal(depth[0, 0, 7], depth[1, 0, 5])
+    assert not np.array_equal(depth[0, 0, 0], depth[0, 7, 7])   # and the map is not flat
+
+
+def test_spiral_uses_the_scenes_bounds(runs):
+    from senerf.geometry import spiral_focus_depth, spiral_path
+
+    run = load_fitted_run(runs.base)
+    scene = types.SimpleNamespace(**{k: getattr(run.scene, k) for k in ("c2w", "intrinsics_all")}, near=2.0, far=6.0)
+    fake = types.SimpleNamespace(scene=scene, train_idx=run.train_idx, test_idx=run.test_idx)
+    c2w, _ = path_cameras(fake, "spiral", 5)
+    np.testing.assert_allclose(c2w, spiral_path(scene.c2w[run.train_idx], 5, spiral_focus_depth(2.0, 6.0)),
+                               atol=1e-12)
+
+
+@pytest.mark.parametrize("flags, needle", [
+    (["--iteration", "2"], "--iteration: iteration 2 is not finished in this run (finished: [0, 1])"),
+    (["--path", "test", "--elevation", "10"], "--elevation: applies to --path orbit only"),
+    (["--scale", "0.3"], "--scale: 16x16 times 0.3 is not a whole number of pixels"),
+    (["--frames", "0"], "argument --frames: must be >= 1"),
+    (["--fps", "0"], "argument --fps"),
+    (["--device", "tpu"], "--device"),
+])
+def test_bad_flags_are_one_line_and_write_nothing(runs, tmp_path, capsys, flags, needle):
+    out = tmp_path / "o"
+    assert main([str(runs.st), "--out", str(out), "--quiet", *flags]) == 2
+    assert needle in _error(capsys)
+    assert not out.exists()
+
+
+def test_folders_that_are_not_finished_runs_are_refused_by_name(runs, tmp_path, capsys):
+    assert main([str(tmp_path / "nowhere")]) == 2
+    assert "nowhere: not a folder" in _error(capsys)
+    assert main([str(tmp_path)]) == 2
+    assert f"{tmp_path / 'run.json'}: not found" in _error(capsys)
+    broken = tmp_path / "broken"
+    shutil.copytree(runs.base, broken, ignore=shutil.ignore_patterns("render"))
+    (broken / "checkpoints" / "iter_0_train.pt").unlink()
+    assert main([str(broken)]) == 2
+    assert "iter_0_train.pt: missing" in _error(capsys)
+    rows = json.loads((broken / "metrics.json").read_text())
+    rows["iterations"] = []
+    (broken / "metrics.json").write_text(json.dumps(rows))
+    assert main([str(broken)]) == 2
+    assert "metrics.json: holds no finished iteration yet" in _error(capsys)
+    moved = tmp_path / "moved"
+    shutil.copytree(runs.base, moved, ignore=shutil.ignore_patterns("render"))
+    record = json.loads((moved / "run.json").read_text())
+    record["scene_dir"] = str(tmp_path / "gone")
+    (moved / "run.json").write_text(json.dumps(record))
+    assert main([str(moved)]) == 2
+    assert "gone" in _error(capsys)
+    assert not (moved / "render").exists() and not (broken / "render").exists()
+
+
+def test_out_is_replaced_only_when_it_is_ours_and_never_half_written(runs, tmp_path, capsys, monkeypatch):
+    out = tmp_path / "r"
+    argv = [str(runs.base), "--out", str(out), "--quiet"]
+    assert main([*argv, "--frames", "3"]) == 0
+    assert main([*argv, "--frames", "3"]) == 2
+    assert "exists; use --overwrite" in _error(capsys)
+    assert main([*argv, "--overwrite", "--frames", "2"]) == 0     # replaced whole: no frame of the old path left
+    assert len(json.loads((out / "path.json").read_text())["c2w"]) == 2
+    assert sorted(p.name for p in out.glob("rgb_*.png")) == ["rgb_000.png", "rgb_001.png"]
+    mine = tmp_path / "mine"
+    mine.mkdir()
+    (mine / "notes.txt").write_text("keep")
+    assert main([str(runs.base), "--out", str(mine), "--overwrite", "--quiet"]) == 2
+    assert "is not a senerf-render output" in _error(capsys)
+    assert (mine / "notes.txt").read_text() == "keep"
+
+    import senerf.train
+
+    calls = []
+
+    def failing_png(path, image):
+        calls.append(path)
+        if len(calls) > 2:
+            raise OSError("disk full")
+    monkeypatch.setattr(senerf.train, "write_png", failing_png)
+    fresh = tmp_path / "fresh"
+    with pytest.raises(OSError):
+        from senerf.flythrough import write_frames
+        run = load_fitted_run(runs.base)
+        c2w, ks = path_cameras(run, "orbit", 2)
+        write_frames(fresh, render_frames(run, c2w, ks, progress=False), {"senerf_render": "x"}, 10.0)
+    assert not fresh.exists() and not [p for p in tmp_path.iterdir() if p.name.startswith(".fresh")]
+    assert main([*argv, "--overwrite", "--frames", "4"]) == 1   # a failure while writing: the old output stays
+    assert len(json.loads((out / "path.json").read_text())["c2w"]) == 2
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith(".r.")]
+
+
+def test_senerf_fit_overwrite_removes_the_renders_of_the_run_it_replaces(runs, tmp_path, capsys):
+    run = tmp_path / "run"
+    shutil.copytree(runs.base, run)
+    assert main([str(run), "--frames", "2", "--quiet"]) == 0
+    assert (run / "render" / "orbit_iter0" / "rgb.gif").is_file()
+    argv = [str(runs.scene), "--protocol", "all", "--out", str(run), "--iterations", "0", *FIT, "--seed", "1"]
+    assert fit(argv) == 2                            # a different run: refused without --overwrite
+    assert (run / "render").exists()
+    assert fit([*argv, "--overwrite"]) == 0
+    assert not (run / "render").exists()
