@@ -23,12 +23,11 @@ import os
 import shutil
 import sys
 import time
-import traceback
 import warnings
 from pathlib import Path
 
 from senerf import __version__
-from senerf.cliargs import SEED_MAX, OneLineParser, argument_type, check_device, float_flag, int_flag
+from senerf.cliargs import SEED_MAX, OneLineParser, argument_type, check_device, float_flag, int_flag, run_command
 from senerf.errors import InputError
 
 __all__ = ["main", "build_parser", "parse_views"]
@@ -466,24 +465,13 @@ def main(argv: list[str] | None = None) -> int:
     # (measured on the 2-core machines: a K-Planes TV step 2.3 s -> 0.03 s); sleeping waits avoid that.
     # Only effective before torch is first imported; an explicit setting by the user wins.
     os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
-    try:
+
+    def body() -> int:
         with warnings.catch_warnings():  # restores warnings.showwarning on exit
             warnings.showwarning = _one_line_warning
             args = build_parser().parse_args(argv)
             return _run(args, [PROG, *argv])
-    except InputError as exc:
-        print(f"{PROG}: error: {exc}", file=sys.stderr)
-        return 2
-    except SystemExit as exc:  # --help / --version
-        return int(exc.code or 0) if isinstance(exc.code, int) or exc.code is None else 2
-    except KeyboardInterrupt:
-        print(f"{PROG}: interrupted (rerun the same command to resume)", file=sys.stderr)
-        return 130
-    except Exception:  # an internal error: keep the traceback for the bug report
-        traceback.print_exc()
-        print(f"{PROG}: internal error (please report it with the traceback above)", file=sys.stderr)
-        return 1
-
+    return run_command(PROG, body, "rerun the same command to resume")
 
 if __name__ == "__main__":  # pragma: no cover
     sys.exit(main())

@@ -7,10 +7,12 @@ print it as one ``<prog>: error: argument --flag: <problem>`` line and exit with
 from __future__ import annotations
 
 import argparse
+import sys
+import traceback
 
 from senerf.errors import InputError
 
-__all__ = ["OneLineParser", "argument_type", "int_flag", "float_flag", "check_device", "SEED_MAX"]
+__all__ = ["OneLineParser", "argument_type", "int_flag", "float_flag", "check_device", "run_command", "SEED_MAX"]
 
 #: Largest seed either command accepts (torch generators take a signed 64-bit seed).
 SEED_MAX = 2**63 - 1
@@ -86,3 +88,23 @@ def check_device(device: str, flag: str = "--device") -> str:
         raise InputError(f"{device} requested but torch sees {torch.cuda.device_count()} GPU(s) "
                          f"(cuda:0 ... cuda:{torch.cuda.device_count() - 1})", field=flag)
     return device
+
+
+def run_command(prog: str, body, interrupted: str) -> int:
+    """``body()``'s exit status, with every way out of a command mapped to one: 2 for bad input (one line
+    ``<prog>: error: <message>``, no traceback), argparse's own status for ``--help`` / ``--version``, 130 when
+    interrupted (``interrupted`` says what to do next), 1 for an internal error (with the traceback)."""
+    try:
+        return body()
+    except InputError as exc:
+        print(f"{prog}: error: {exc}", file=sys.stderr)
+        return 2
+    except SystemExit as exc:  # --help / --version
+        return int(exc.code or 0) if isinstance(exc.code, int) or exc.code is None else 2
+    except KeyboardInterrupt:
+        print(f"{prog}: interrupted ({interrupted})", file=sys.stderr)
+        return 130
+    except Exception:  # an internal error: keep the traceback for the bug report
+        traceback.print_exc()
+        print(f"{prog}: internal error (please report it with the traceback above)", file=sys.stderr)
+        return 1

@@ -24,14 +24,13 @@ import os
 import shutil
 import sys
 import tempfile
-import traceback
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from senerf import __version__
-from senerf.cliargs import OneLineParser, check_device, float_flag, int_flag
+from senerf.cliargs import OneLineParser, check_device, float_flag, int_flag, run_command
 from senerf.errors import InputError
 
 __all__ = ["FittedRun", "load_fitted_run", "path_cameras", "render_frames", "write_frames", "main", "PATHS"]
@@ -326,22 +325,7 @@ def main(argv: list[str] | None = None) -> int:
     """Entry point of ``senerf-render``; returns the exit status (0 ok, 2 bad input, 130 interrupted, 1 internal)."""
     argv = list(sys.argv[1:] if argv is None else argv)
     os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")   # as senerf-fit (sleeping OpenMP waits on shared cores)
-    try:
-        args = build_parser().parse_args(argv)
-        return _run(args, [PROG, *argv])
-    except InputError as exc:
-        print(f"{PROG}: error: {exc}", file=sys.stderr)
-        return 2
-    except SystemExit as exc:  # --help / --version
-        return int(exc.code or 0) if isinstance(exc.code, int) or exc.code is None else 2
-    except KeyboardInterrupt:
-        print(f"{PROG}: interrupted (nothing was written)", file=sys.stderr)
-        return 130
-    except Exception:  # an internal error: keep the traceback for the bug report
-        traceback.print_exc()
-        print(f"{PROG}: internal error (please report it with the traceback above)", file=sys.stderr)
-        return 1
-
+    return run_command(PROG, lambda: _run(build_parser().parse_args(argv), [PROG, *argv]), "nothing was written")
 
 if __name__ == "__main__":  # pragma: no cover
     sys.exit(main())

@@ -63,3 +63,24 @@ def test_parser_errors_are_input_errors_not_exits():
         with pytest.raises(InputError, match=needle) as info:
             parser.parse_args(argv)
         assert "\n" not in str(info.value)
+
+
+def test_run_command_maps_every_way_out_to_its_exit_status(capsys):
+    from senerf.cliargs import run_command
+
+    def raising(exc):
+        def body():
+            raise exc
+        return body
+
+    assert run_command("prog", lambda: 0, "x") == 0
+    assert run_command("prog", raising(InputError("bad", field="--f")), "x") == 2
+    assert capsys.readouterr().err == "prog: error: --f: bad\n"
+    assert run_command("prog", raising(SystemExit(0)), "x") == 0     # --help
+    assert run_command("prog", raising(SystemExit("usage")), "x") == 2
+    assert run_command("prog", raising(KeyboardInterrupt()), "rerun it") == 130
+    assert capsys.readouterr().err == "prog: interrupted (rerun it)\n"
+    assert run_command("prog", raising(RuntimeError("boom")), "x") == 1
+    err = capsys.readouterr().err
+    assert "Traceback" in err and "RuntimeError: boom" in err
+    assert err.endswith("prog: internal error (please report it with the traceback above)\n")
