@@ -20,6 +20,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import shlex
 import shutil
 import sys
 import time
@@ -406,6 +407,7 @@ def _run(args, argv) -> int:
     summary = _write_summary(metrics, scene, train_idx, test_idx, model, out)
     if summary is not None:
         print(f"{PROG}: summary figure in {summary}")
+    print(f"{PROG}: to fly around the fitted scene: senerf-render {shlex.quote(str(out))}")
     return 0
 
 

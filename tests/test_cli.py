@@ -89,7 +89,9 @@ def test_tiny_end_to_end_fit_resume_and_overwrite(tiny_scene, tmp_path, capsys):
         assert (out / "iter_0" / "test" / f"depth_{k:03d}.png").is_file()
     assert (out / "checkpoints" / "iter_0_train.pt").is_file()
     assert (out / "summary.png").is_file()
-    assert f"summary figure in {out / 'summary.png'}" in capsys.readouterr().out
+    printed = capsys.readouterr().out
+    assert f"summary figure in {out / 'summary.png'}" in printed
+    assert f"to fly around the fitted scene: senerf-render {out}\n" in printed
 
     # the same command resumes its own (finished) run: same result, no retraining
     assert main([str(tiny_scene), "--out", str(out), *TINY]) == 0
