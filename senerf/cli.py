@@ -24,7 +24,6 @@ import shlex
 import shutil
 import sys
 import time
-import warnings
 from pathlib import Path
 
 from senerf import __version__
@@ -440,12 +439,6 @@ def _write_summary(metrics: dict, scene, train_idx, test_idx, model, out: Path) 
         return None
 
 
-def _one_line_warning(message, category, filename, lineno, file=None, line=None) -> None:
-    """Print a warning (e.g. a skipped frame) as one ``senerf-fit: warning:`` line, without source lines."""
-    text = " ".join(str(message).split())
-    print(f"{PROG}: warning: {text}", file=sys.stderr if file is None else file)
-
-
 def _attach_negative_values(argv: list[str]) -> list[str]:
     """``--views -1,0`` as ``--views=-1,0``: argparse takes a value starting with ``-`` for an option and
     reports "expected one argument"; attached, the value reaches its own check (and its clear message)."""
@@ -468,12 +461,8 @@ def main(argv: list[str] | None = None) -> int:
     # Only effective before torch is first imported; an explicit setting by the user wins.
     os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
-    def body() -> int:
-        with warnings.catch_warnings():  # restores warnings.showwarning on exit
-            warnings.showwarning = _one_line_warning
-            args = build_parser().parse_args(argv)
-            return _run(args, [PROG, *argv])
-    return run_command(PROG, body, "rerun the same command to resume")
+    return run_command(PROG, lambda: _run(build_parser().parse_args(argv), [PROG, *argv]),
+                       "rerun the same command to resume")
 
 if __name__ == "__main__":  # pragma: no cover
     sys.exit(main())

@@ -9,6 +9,7 @@ from __future__ import annotations
 import argparse
 import sys
 import traceback
+import warnings
 
 from senerf.errors import InputError
 
@@ -93,9 +94,15 @@ def check_device(device: str, flag: str = "--device") -> str:
 def run_command(prog: str, body, interrupted: str) -> int:
     """``body()``'s exit status, with every way out of a command mapped to one: 2 for bad input (one line
     ``<prog>: error: <message>``, no traceback), argparse's own status for ``--help`` / ``--version``, 130 when
-    interrupted (``interrupted`` says what to do next), 1 for an internal error (with the traceback)."""
+    interrupted (``interrupted`` says what to do next), 1 for an internal error (with the traceback).  Warnings
+    raised meanwhile print as one ``<prog>: warning: <message>`` line each, without source lines."""
+    def one_line(message, category, filename, lineno, file=None, line=None) -> None:
+        print(f"{prog}: warning: {' '.join(str(message).split())}", file=sys.stderr if file is None else file)
+
     try:
-        return body()
+        with warnings.catch_warnings():  # restores warnings.showwarning on exit
+            warnings.showwarning = one_line
+            return body()
     except InputError as exc:
         print(f"{prog}: error: {exc}", file=sys.stderr)
         return 2

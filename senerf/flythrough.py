@@ -77,23 +77,66 @@ def _read_json(path: Path) -> dict:
     return record
 
 
-def _key(record: dict, key: str, path: Path, kind=None):
+def _key(record: dict, key: str, path: Path, kind=None, field: str | None = None):
     if key not in record or (kind is not None and not isinstance(record[key], kind)):
-        raise InputError("missing or of the wrong type", file=path, field=key)
+        raise InputError("missing or of the wrong type", file=path, field=field or key)
     return record[key]
+
+
+def _int(record: dict, key: str, path: Path, field: str, minimum: int = 0) -> int:
+    value = record.get(key)
+    if isinstance(value, bool) or not isinstance(value, int) or value < minimum:
+        raise InputError(f"expected an integer >= {minimum}, got {value!r}", file=path, field=field)
+    return value
+
+
+def _views(metrics: dict, key: str, path: Path, n_images: int) -> np.ndarray:
+    """``metrics[key]`` as an index array: a non-empty list of distinct integers in ``[0, n_images)``."""
+    views = metrics.get(key)
+    if (not isinstance(views, list) or not views
+            or any(isinstance(v, bool) or not isinstance(v, int) or not 0 <= v < n_images for v in views)):
+        raise InputError(f"expected a non-empty list of view indices in [0, {n_images}), got {views!r}"[:200],
+                         file=path, field=key)
+    return np.asarray(views, dtype=np.int64)
+
+
+def _model(run: dict, run_path: Path):
+    from senerf.train import ModelConfig
+
+    record = _key(run, "model", run_path, dict)
+    try:
+        return ModelConfig(**record)
+    except InputError as exc:   # ModelConfig's own check, named in run.json
+        raise InputError(exc.problem, file=run_path, field=f"model.{exc.field}") from None
+    except (TypeError, ValueError) as exc:
+        raise InputError(f"not a model of this senerf version ({exc})", file=run_path, field="model") from None
+
+
+def _load_state(module, state, name: str, ckpt: Path) -> None:
+    from senerf.train import load_state_keeping_box
+
+    if not isinstance(state, dict):
+        raise InputError(f"its {name} is not a state dict", file=ckpt)
+    try:
+        load_state_keeping_box(module, state)
+    except (RuntimeError, TypeError, KeyError, ValueError, AttributeError) as exc:
+        raise InputError(f"its {name} does not fit the run's model ({str(exc).splitlines()[0]})", file=ckpt) from None
+    if not all(bool(v.isfinite().all()) for v in module.state_dict().values() if v.is_floating_point()):
+        raise InputError(f"its {name} holds non-finite values (NaN or inf)", file=ckpt)
 
 
 def load_fitted_run(folder, iteration: int | None = None, device: str = "cpu") -> FittedRun:
     """Load a run folder's field after ``iteration`` (default: the last finished one).
 
     Raises:
-        InputError: not a senerf-fit folder, no finished iteration (or not ``iteration``), a missing
-            checkpoint, a scene folder that no longer matches the run.
+        InputError: not a senerf-fit folder, a bad ``run.json`` / ``metrics.json`` value, no finished
+            iteration (or not ``iteration``), a missing or foreign checkpoint, a scene folder that no longer
+            matches the run.
     """
     import torch
 
     from senerf.data import load_scene
-    from senerf.train import ModelConfig, build_field, load_checkpoint, load_state_keeping_box, make_occupancy
+    from senerf.train import build_field, load_checkpoint, make_occupancy
 
     folder = Path(folder)
     if not folder.is_dir():
@@ -102,30 +145,26 @@ def load_fitted_run(folder, iteration: int | None = None, device: str = "cpu") -
     run = _read_json(run_path)
     metrics = _read_json(metrics_path)
     rows = _key(metrics, "iterations", metrics_path, list)
-    done = sorted(int(r["iteration"]) for r in rows if isinstance(r, dict) and isinstance(r.get("iteration"), int))
+    done = sorted(r["iteration"] for r in rows if isinstance(r, dict) and type(r.get("iteration")) is int)
     if not done:
         raise InputError("holds no finished iteration yet; let senerf-fit finish one", file=metrics_path)
     k = done[-1] if iteration is None else int(iteration)
     if k not in done:
         raise InputError(f"iteration {k} is not finished in this run (finished: {done})", field="--iteration")
-    try:
-        model = ModelConfig(**_key(run, "model", run_path, dict))
-    except TypeError as exc:
-        raise InputError(f"not a model of this senerf version ({exc})", file=run_path, field="model") from None
+    model = _model(run, run_path)
     train = _key(run, "train", run_path, dict)
-    seed, steps = _key(train, "seed", run_path, int), _key(train, "steps", run_path, int)
+    seed, steps = _int(train, "seed", run_path, "train.seed"), _int(train, "steps", run_path, "train.steps", 1)
     scene_dir = Path(_key(run, "scene_dir", run_path, str))
-    downscale = _key(run, "downscale", run_path, (int, float))
+    downscale = run.get("downscale")
+    if isinstance(downscale, bool) or not isinstance(downscale, (int, float)) or not 1.0 <= downscale < float("inf"):
+        raise InputError(f"expected a number >= 1, got {downscale!r}", file=run_path, field="downscale")
     scene = load_scene(scene_dir, downscale=downscale)
-    resolution = _key(metrics, "resolution", metrics_path, list)
-    if list(scene.size) != [int(v) for v in resolution]:
-        raise InputError(f"the scene is {scene.size[0]}x{scene.size[1]} (H x W) at downscale {downscale:g}, the run "
-                         f"was fitted at {resolution[0]}x{resolution[1]}", file=scene_dir)
-    train_idx = np.asarray(_key(metrics, "train_views", metrics_path, list), dtype=np.int64)
-    test_idx = np.asarray(_key(metrics, "test_views", metrics_path, list), dtype=np.int64)
-    if max(train_idx.max(initial=-1), test_idx.max(initial=-1)) >= scene.n_images:
-        raise InputError(f"names views beyond the scene's {scene.n_images} images", file=metrics_path,
-                         field="train_views/test_views")
+    resolution = metrics.get("resolution")
+    if list(scene.size) != resolution:
+        raise InputError(f"the scene is {scene.size[0]}x{scene.size[1]} (H x W) at downscale {downscale:g}; the run "
+                         f"was fitted at {resolution!r}"[:200], file=scene_dir)
+    train_idx = _views(metrics, "train_views", metrics_path, scene.n_images)
+    test_idx = _views(metrics, "test_views", metrics_path, scene.n_images)
     ckpt = folder / "checkpoints" / f"iter_{k}_train.pt"
     if not ckpt.is_file():
         raise InputError("missing: the run's checkpoints were removed", file=ckpt)
@@ -133,15 +172,12 @@ def load_fitted_run(folder, iteration: int | None = None, device: str = "cpu") -
     if state.get("format") != "senerf-train-1" or "field" not in state:
         raise InputError("not a senerf training checkpoint", file=ckpt)
     field = build_field(model, seed=seed, steps=steps)
-    try:
-        load_state_keeping_box(field, state["field"])
-    except RuntimeError as exc:
-        raise InputError(f"does not fit the run's model ({str(exc).splitlines()[0]})", file=ckpt) from None
+    _load_state(field, state["field"], "field", ckpt)
     if hasattr(field, "set_progress"):
         field.set_progress(steps)   # all frequencies on, as at the end of training
     occupancy = make_occupancy(model, "cpu")
     if occupancy is not None and "occupancy" in state:
-        load_state_keeping_box(occupancy, state["occupancy"])
+        _load_state(occupancy, state["occupancy"], "occupancy grid", ckpt)
     field = field.to(torch.device(device)).eval()
     occupancy = None if occupancy is None else occupancy.to(torch.device(device))
     return FittedRun(folder, scene, model, field, occupancy, k, train_idx, test_idx)
@@ -150,8 +186,15 @@ def load_fitted_run(folder, iteration: int | None = None, device: str = "cpu") -
 def path_cameras(run: FittedRun, path: str, frames: int, scale: float = 1.0, elevation: float | None = None):
     """Cameras of a path: ``(c2w (n, 4, 4) float64, intrinsics: a tuple of n)``.
 
-    ``orbit`` and ``spiral`` use the first input view's intrinsics, scaled by ``scale``; ``test`` the test
-    views' own (``frames`` is ignored).  ``elevation`` (degrees) overrides the orbit's.
+    ``orbit`` and ``spiral`` are built from the run's input (training) cameras and use the first one's
+    intrinsics, scaled by ``scale``; ``test`` takes the test views with their own (``frames`` is ignored).
+    ``elevation`` (degrees) overrides the orbit's.  The spiral looks at the depth NeRF's LLFF code picks from
+    the scene's near and far bounds (:func:`senerf.geometry.spiral_focus_depth`); a scene without bounds (an
+    object) at the point the cameras look at.
+
+    Raises:
+        InputError: no such path for this scene (an orbit of a forward-facing NDC run, degenerate cameras),
+            or a ``scale`` that gives a fractional image size.
     """
     from senerf.geometry import orbit_path, spiral_focus_depth, spiral_path
 
@@ -161,6 +204,9 @@ def path_cameras(run: FittedRun, path: str, frames: int, scale: float = 1.0, ele
         return scene.c2w[idx], tuple(_scaled(scene.intrinsics_all[int(i)], scale) for i in idx)
     inputs = scene.c2w[run.train_idx]
     k = _scaled(scene.intrinsics_all[int(run.train_idx[0])], scale)
+    if path == "orbit" and getattr(run.model, "ndc", False):
+        raise InputError("an orbit goes behind a forward-facing (NDC) capture, where nothing was fitted; use "
+                         "--path spiral or test", field="--path")
     if path == "orbit":
         try:
             c2w = orbit_path(inputs, frames, elevation=elevation)
@@ -175,7 +221,10 @@ def path_cameras(run: FittedRun, path: str, frames: int, scale: float = 1.0, ele
             focus = float(np.linalg.norm(_common_point(scene) - inputs[:, :3, 3].mean(axis=0)))
         else:
             focus = spiral_focus_depth(near, far)
-        c2w = spiral_path(inputs, frames, focus_depth=focus)
+        try:
+            c2w = spiral_path(inputs, frames, focus_depth=focus)
+        except ValueError as exc:
+            raise InputError(f"no spiral for this scene ({exc}); use --path orbit or test", field="--path") from None
     else:
         raise InputError(f"expected one of {', '.join(PATHS)}, got {path!r}", field="--path")
     return np.asarray(c2w, dtype=np.float64), (k,) * int(frames)
@@ -205,7 +254,9 @@ def render_frames(run: FittedRun, c2w: np.ndarray, intrinsics, device=None, prog
 
     out = render_views(run.field, run.model, intrinsics, c2w, occupancy=run.occupancy, device=device,
                        progress=progress)
-    rgb = np.clip(np.round(np.clip(out["rgb"], 0.0, 1.0).astype(np.float64) * 255.0), 0, 255).astype(np.uint8)
+    rgb = np.empty(out["rgb"].shape, np.uint8)
+    for i, frame in enumerate(out["rgb"]):   # as senerf-fit's PNGs (float64 rounding), one frame at a time
+        rgb[i] = np.round(np.clip(frame, 0.0, 1.0).astype(np.float64) * 255.0)
     opaque = out["z_depth"][(out["acc"] > 0.5) & np.isfinite(out["z_depth"])]
     lo, hi = (np.percentile(opaque, [1.0, 99.0]) if opaque.size else (None, None))
     bg = 1.0 if run.model.eval_background == "white" else 0.0
@@ -223,8 +274,7 @@ def write_frames(out: Path, frames: dict, record: dict, fps: float, overwrite: b
 
     out = Path(out)
     _check_out(out, overwrite)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=out.parent))
+    tmp = _temp_sibling(out)
     try:
         for i, (rgb, depth) in enumerate(zip(frames["rgb"], frames["depth"])):
             write_png(tmp / f"rgb_{i:03d}.png", rgb)
@@ -241,10 +291,36 @@ def write_frames(out: Path, frames: dict, record: dict, fps: float, overwrite: b
             shutil.rmtree(old, ignore_errors=True)
         else:
             tmp.rename(out)
+    except OSError as exc:   # a full disk, a folder that turned read-only: the earlier output (if any) stays
+        raise InputError(f"cannot write there ({exc.strerror or exc})", file=out) from None
     finally:
         if tmp.exists():
             shutil.rmtree(tmp, ignore_errors=True)
     return out
+
+
+def _temp_sibling(out: Path) -> Path:
+    """A new hidden folder beside ``out`` (``out``'s parents created); :class:`InputError` if impossible."""
+    try:
+        out.parent.mkdir(parents=True, exist_ok=True)
+        return Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=out.parent))
+    except OSError as exc:
+        raise InputError(f"cannot write there ({exc.strerror or exc}); choose another --out", file=out) from None
+
+
+def _check_memory(intrinsics) -> None:
+    """Refuse a path whose frames would not fit in this machine's memory (~32 bytes a pixel: the float
+    renders and the 8-bit frames are all held until the GIFs are written)."""
+    need = 32.0 * sum(k.width * k.height for k in intrinsics)
+    try:
+        have = float(os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES"))
+    except (AttributeError, ValueError, OSError):   # not a POSIX system: no check
+        return
+    if need > 0.8 * have:
+        k = intrinsics[0]
+        raise InputError(f"{len(intrinsics)} frames at {k.width}x{k.height} need about {need / 2**30:.1f} GiB of "
+                         f"memory, this machine has {have / 2**30:.1f} GiB; use fewer --frames or a smaller --scale",
+                         field="--frames")
 
 
 def _check_out(out: Path, overwrite: bool) -> None:
@@ -276,15 +352,16 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--path", choices=PATHS, default=None,
                    help="orbit (default for object scenes), spiral (default for forward-facing scenes) or test "
                         "(the run's test views)")
-    p.add_argument("--frames", type=int_flag("--frames", maximum=10000), default=60, help="frames (default 60)")
-    p.add_argument("--fps", type=float_flag("--fps", positive=True, maximum=100.0), default=20.0,
-                   help="GIF frame rate (default 20)")
+    p.add_argument("--frames", type=int_flag("--frames", maximum=10000), default=None,
+                   help="frames of an orbit or spiral (default 60)")
+    p.add_argument("--fps", type=float_flag("--fps", positive=True, maximum=50.0), default=20.0,
+                   help="GIF frame rate, at most 50 (GIF delays are whole hundredths of a second; default 20)")
     p.add_argument("--iteration", type=int_flag("--iteration", allow_zero=True), default=None,
                    help="which finished iteration's field (default: the last; 0 = the teacher)")
     p.add_argument("--scale", type=float_flag("--scale", positive=True), default=1.0,
                    help="render at this multiple of the fitted resolution (default 1)")
-    p.add_argument("--elevation", type=float_flag("--elevation", -90.0, maximum=90.0), default=None, metavar="DEG",
-                   help="orbit elevation (default: the input views' mean)")
+    p.add_argument("--elevation", type=float_flag("--elevation", -89.0, maximum=89.0), default=None, metavar="DEG",
+                   help="orbit elevation, -89 to 89 (default: the input views' mean)")
     p.add_argument("--out", type=Path, help="output folder (default RUN/render/<path>_iter<K>)")
     p.add_argument("--overwrite", action="store_true", help="replace an earlier senerf-render output in --out")
     p.add_argument("--device", default="cpu", help="cpu, cuda or cuda:N")
@@ -305,9 +382,13 @@ def _run(args, argv: list[str]) -> int:
     path = args.path or ("spiral" if run.scene.kind == "forward_facing" else "orbit")
     if args.elevation is not None and path != "orbit":
         raise InputError("applies to --path orbit only", field="--elevation")
+    if args.frames is not None and path == "test":
+        raise InputError("the test path has one frame per test view; leave --frames out", field="--frames")
     out = args.out if args.out is not None else run.folder / "render" / f"{path}_iter{run.iteration}"
     _check_out(out, args.overwrite)
-    c2w, intrinsics = path_cameras(run, path, args.frames, args.scale, args.elevation)
+    c2w, intrinsics = path_cameras(run, path, args.frames or 60, args.scale, args.elevation)
+    _check_memory(intrinsics)
+    shutil.rmtree(_temp_sibling(out))   # the folder can be written: found out before rendering, not after
     print(f"{PROG}: {run.scene.name}, iteration {run.iteration}, {path} path: {len(c2w)} frames at "
           f"{intrinsics[0].width}x{intrinsics[0].height}")
     frames = render_frames(run, c2w, intrinsics, device=device, progress=not args.quiet)
@@ -326,6 +407,7 @@ def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")   # as senerf-fit (sleeping OpenMP waits on shared cores)
     return run_command(PROG, lambda: _run(build_parser().parse_args(argv), [PROG, *argv]), "nothing was written")
+
 
 if __name__ == "__main__":  # pragma: no cover
     sys.exit(main())

@@ -84,3 +84,16 @@ def test_run_command_maps_every_way_out_to_its_exit_status(capsys):
     err = capsys.readouterr().err
     assert "Traceback" in err and "RuntimeError: boom" in err
     assert err.endswith("prog: internal error (please report it with the traceback above)\n")
+
+
+def test_run_command_prints_warnings_as_one_line_each(capsys):
+    import warnings
+
+    from senerf.cliargs import run_command
+
+    def body():
+        warnings.warn("a warning\n   over two lines", UserWarning)
+        return 0
+    assert run_command("prog", body, "x") == 0
+    assert capsys.readouterr().err == "prog: warning: a warning over two lines\n"
+    assert warnings.showwarning.__name__ != "one_line"      # restored afterwards

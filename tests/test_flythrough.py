@@ -117,6 +117,10 @@ def test_spiral_uses_the_scenes_bounds(runs):
     (["--scale", "0.3"], "--scale: 16x16 times 0.3 is not a whole number of pixels"),
     (["--frames", "0"], "argument --frames: must be >= 1"),
     (["--fps", "0"], "argument --fps"),
+    (["--fps", "60"], "argument --fps: expected a finite number > 0 and <= 50"),
+    (["--elevation", "90"], "argument --elevation"),
+    (["--path", "test", "--frames", "5"], "--frames: the test path has one frame per test view"),
+    (["--frames", "10000", "--scale", "64"], "--frames: 10000 frames at 1024x1024 need about"),
     (["--device", "tpu"], "--device"),
 ])
 def test_bad_flags_are_one_line_and_write_nothing(runs, tmp_path, capsys, flags, needle):
@@ -177,13 +181,16 @@ def test_out_is_replaced_only_when_it_is_ours_and_never_half_written(runs, tmp_p
             raise OSError("disk full")
     monkeypatch.setattr(senerf.train, "write_png", failing_png)
     fresh = tmp_path / "fresh"
-    with pytest.raises(OSError):
+    from senerf.errors import InputError
+
+    with pytest.raises(InputError, match="cannot write there"):
         from senerf.flythrough import write_frames
         run = load_fitted_run(runs.base)
         c2w, ks = path_cameras(run, "orbit", 2)
         write_frames(fresh, render_frames(run, c2w, ks, progress=False), {"senerf_render": "x"}, 10.0)
     assert not fresh.exists() and not [p for p in tmp_path.iterdir() if p.name.startswith(".fresh")]
-    assert main([*argv, "--overwrite", "--frames", "4"]) == 1   # a failure while writing: the old output stays
+    assert main([*argv, "--overwrite", "--frames", "4"]) == 2   # a failure while writing: the old output stays
+    assert _error(capsys).endswith(f"{out}: cannot write there (disk full)")
     assert len(json.loads((out / "path.json").read_text())["c2w"]) == 2
     assert not [p for p in tmp_path.iterdir() if p.name.startswith(".r.")]
 
@@ -198,3 +205,73 @@ def test_senerf_fit_overwrite_removes_the_renders_of_the_run_it_replaces(runs, t
     assert (run / "render").exists()
     assert fit([*argv, "--overwrite"]) == 0
     assert not (run / "render").exists()
+
+
+def _edit_json(path, edit):
+    record = json.loads(path.read_text())
+    edit(record)
+    path.write_text(json.dumps(record))
+
+
+def _edit_checkpoint(path, edit):
+    import torch
+
+    state = torch.load(path, weights_only=True)
+    edit(state)
+    torch.save(state, path)
+
+
+def _nan_field(state):
+    key = next(k for k, v in state["field"].items() if v.is_floating_point())
+    state["field"][key] = state["field"][key] * float("nan")
+
+
+@pytest.mark.parametrize("file, edit, needle", [
+    ("run.json", lambda r: r["model"].update(occupancy_resolution=32), "iter_0_train.pt: its occupancy grid does not fit"),
+    ("run.json", lambda r: r["model"].update(resolution="8"), "run.json: model.resolution: must be an integer"),
+    ("run.json", lambda r: r["model"].update(field="zzz"), "run.json: model.field: must be one of"),
+    ("run.json", lambda r: r["model"].update(bogus=1), "run.json: model: not a model of this senerf version"),
+    ("run.json", lambda r: r.update(downscale=0), "run.json: downscale: expected a number >= 1, got 0"),
+    ("run.json", lambda r: r["train"].update(seed=True), "run.json: train.seed: expected an integer >= 0, got True"),
+    ("metrics.json", lambda m: m.update(resolution=[16]), "the run was fitted at [16]"),
+    ("metrics.json", lambda m: m.update(train_views=[-1, 0]), "metrics.json: train_views: expected a non-empty list"),
+    ("metrics.json", lambda m: m.update(train_views=[0.5, 1]), "metrics.json: train_views: expected a non-empty list"),
+    ("metrics.json", lambda m: m.update(test_views=[]), "metrics.json: test_views: expected a non-empty list"),
+    ("metrics.json", lambda m: m["iterations"][0].update(iteration=False), "metrics.json: holds no finished iteration"),
+    ("checkpoints/iter_0_train.pt", lambda s: s.update(field=5), "iter_0_train.pt: its field is not a state dict"),
+    ("checkpoints/iter_0_train.pt", _nan_field, "iter_0_train.pt: its field holds non-finite values"),
+])
+def test_a_damaged_run_folder_is_one_line_naming_the_file_and_field(runs, tmp_path, capsys, file, edit, needle):
+    run = tmp_path / "run"
+    shutil.copytree(runs.base, run, ignore=shutil.ignore_patterns("render"))
+    (_edit_checkpoint if file.endswith(".pt") else _edit_json)(run / file, edit)
+    assert main([str(run), "--quiet", "--frames", "2"]) == 2
+    assert needle in _error(capsys)
+    assert not (run / "render").exists()
+
+
+def test_paths_a_scene_cannot_have_are_refused_by_name(runs):
+    from senerf.errors import InputError
+
+    run = load_fitted_run(runs.base)
+    ndc = types.SimpleNamespace(scene=run.scene, model=types.SimpleNamespace(ndc=True), train_idx=run.train_idx)
+    with pytest.raises(InputError, match="--path: an orbit goes behind a forward-facing"):
+        path_cameras(ndc, "orbit", 3)
+    opposed = np.stack([np.eye(4), np.diag([-1.0, 1.0, -1.0, 1.0])])   # optical axes cancel out
+    scene = types.SimpleNamespace(c2w=opposed, intrinsics_all=run.scene.intrinsics_all[:2], near=1.0, far=4.0)
+    fake = types.SimpleNamespace(scene=scene, model=run.model, train_idx=np.array([0, 1]))
+    with pytest.raises(InputError, match="--path: no spiral for this scene"):
+        path_cameras(fake, "spiral", 3)
+
+
+def test_an_out_that_cannot_be_created_is_refused_before_rendering(runs, tmp_path, capsys, monkeypatch):
+    import senerf.flythrough
+
+    rendered = []
+    monkeypatch.setattr(senerf.flythrough, "render_frames", lambda *a, **k: rendered.append(1))
+    def refused(**kwargs):
+        raise PermissionError(13, "Permission denied")
+    monkeypatch.setattr(senerf.flythrough.tempfile, "mkdtemp", refused)
+    assert main([str(runs.base), "--out", str(tmp_path / "sub" / "o"), "--quiet"]) == 2
+    assert "cannot write there (Permission denied); choose another --out" in _error(capsys)
+    assert rendered == []

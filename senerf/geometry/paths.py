@@ -37,7 +37,8 @@ def orbit_path(input_c2w, n: int, center=None, up=None, elevation: float | None 
     The circle is the inputs' mean elevation and mean distance about ``center`` (measured with
     :func:`spherical_from_pose` about ``up``) unless given; frame ``k`` sits at azimuth
     ``az_0 + 360 k / n`` where ``az_0`` is the first input camera's azimuth, so frame 0 is beside input 0.
-    Each pose is :func:`pose_from_spherical` (no roll: image up points along ``up``).
+    Each pose is :func:`pose_from_spherical` (no roll: image up points along ``up``).  At elevation +-90 every
+    frame sits at the pole and only turns about the view axis.
 
     Args:
         input_c2w: ``(m, 4, 4)`` or ``(m, 3, 4)`` input camera-to-world poses, ``m >= 1``.
@@ -126,8 +127,12 @@ def spiral_path(input_c2w, n: int, focus_depth: float, radii=None, rotations: fl
     if not (np.isfinite(focus) and focus > 0.0):
         raise ValueError(f"spiral_path: focus_depth must be positive and finite, got {focus_depth!r}")
     for value, name in ((rotations, "rotations"), (z_rate, "z_rate")):
-        if not np.isfinite(float(value)):
-            raise ValueError(f"spiral_path: {name} must be finite, got {value!r}")
+        try:
+            finite = np.isfinite(float(value))
+        except (TypeError, ValueError):
+            finite = False
+        if not finite:
+            raise ValueError(f"spiral_path: {name} must be a finite number, got {value!r}")
     a = arr.astype(np.float64)
     centre = a[:, :3, 3].mean(axis=0)
     forward, image_up = a[:, :3, 2].mean(axis=0), -a[:, :3, 1].mean(axis=0)

@@ -157,6 +157,9 @@ def test_spiral_focus_depth_golden_and_errors():
         spiral_path(np.eye(4)[None], 3, focus_depth=1.0, radii=(1.0, -1.0, 0.0))
     with pytest.raises(ValueError, match="focus point"):
         spiral_path(np.eye(4)[None], 4, focus_depth=1.0, radii=(0.0, 0.0, 1.0), rotations=1.0, z_rate=1.0)
+    for bad in (None, "x", np.inf):
+        with pytest.raises(ValueError, match="rotations must be a finite number"):
+            spiral_path(np.eye(4)[None], 3, focus_depth=1.0, rotations=bad)
     opposed = np.stack([np.eye(4), np.diag([-1.0, 1.0, -1.0, 1.0])])
     with pytest.raises(ValueError, match="cancel out"):
         spiral_path(opposed, 3, focus_depth=1.0)
