@@ -112,7 +112,9 @@ def _model(run: dict, run_path: Path):
         raise InputError(f"not a model of this senerf version ({exc})", file=run_path, field="model") from None
 
 
-def _load_state(module, state, name: str, ckpt: Path) -> None:
+def _load_state(module, state, name: str, ckpt: Path, allow_inf: bool = False) -> None:
+    """``module`` loaded from ``state`` (one line naming ``ckpt`` when it does not fit or holds NaN; inf only
+    with ``allow_inf``: an occupancy grid marks cells not yet measured with inf)."""
     from senerf.train import load_state_keeping_box
 
     if not isinstance(state, dict):
@@ -121,8 +123,9 @@ def _load_state(module, state, name: str, ckpt: Path) -> None:
         load_state_keeping_box(module, state)
     except (RuntimeError, TypeError, KeyError, ValueError, AttributeError) as exc:
         raise InputError(f"its {name} does not fit the run's model ({str(exc).splitlines()[0]})", file=ckpt) from None
-    if not all(bool(v.isfinite().all()) for v in module.state_dict().values() if v.is_floating_point()):
-        raise InputError(f"its {name} holds non-finite values (NaN or inf)", file=ckpt)
+    floats = [v for v in module.state_dict().values() if v.is_floating_point()]
+    if any(bool(v.isnan().any()) or (not allow_inf and bool(v.isinf().any())) for v in floats):
+        raise InputError(f"its {name} holds non-finite values ({'NaN' if allow_inf else 'NaN or inf'})", file=ckpt)
 
 
 def load_fitted_run(folder, iteration: int | None = None, device: str = "cpu") -> FittedRun:
@@ -172,12 +175,10 @@ def load_fitted_run(folder, iteration: int | None = None, device: str = "cpu") -
     if state.get("format") != "senerf-train-1" or "field" not in state:
         raise InputError("not a senerf training checkpoint", file=ckpt)
     field = build_field(model, seed=seed, steps=steps)
-    _load_state(field, state["field"], "field", ckpt)
-    if hasattr(field, "set_progress"):
-        field.set_progress(steps)   # all frequencies on, as at the end of training
+    _load_state(field, state["field"], "field", ckpt)   # a NeRF field's annealing weights included, as scored
     occupancy = make_occupancy(model, "cpu")
     if occupancy is not None and "occupancy" in state:
-        _load_state(occupancy, state["occupancy"], "occupancy grid", ckpt)
+        _load_state(occupancy, state["occupancy"], "occupancy grid", ckpt, allow_inf=True)
     field = field.to(torch.device(device)).eval()
     occupancy = None if occupancy is None else occupancy.to(torch.device(device))
     return FittedRun(folder, scene, model, field, occupancy, k, train_idx, test_idx)

@@ -275,3 +275,213 @@ def test_an_out_that_cannot_be_created_is_refused_before_rendering(runs, tmp_pat
     assert main([str(runs.base), "--out", str(tmp_path / "sub" / "o"), "--quiet"]) == 2
     assert "cannot write there (Permission denied); choose another --out" in _error(capsys)
     assert rendered == []
+
+
+@pytest.mark.parametrize("file, edit, needle", [
+    ("run.json", lambda r: r.update(scene_dir=5), "run.json: scene_dir: missing or of the wrong type"),
+    ("run.json", lambda r: r.update(downscale=float("inf")), "run.json: downscale: expected a number >= 1, got inf"),
+    ("metrics.json", lambda m: m.update(train_views=[0, 8]),   # the scene has 8 views: 5 train, 3 test
+     "metrics.json: train_views: expected a non-empty list of view indices in [0, 8)"),
+    ("metrics.json", lambda m: m.update(train_views=[True, 1]), "metrics.json: train_views: expected a non-empty list"),
+    ("checkpoints/iter_0_train.pt", lambda s: s.update(format="other"),
+     "iter_0_train.pt: not a senerf training checkpoint"),
+    ("checkpoints/iter_0_train.pt", lambda s: s["field"].update({5: s["field"][next(iter(s["field"]))]}),
+     "iter_0_train.pt: its field does not fit the run's model"),
+])
+def test_more_damaged_run_folder_values_are_named(runs, tmp_path, capsys, file, edit, needle):
+    run = tmp_path / "run"
+    shutil.copytree(runs.base, run, ignore=shutil.ignore_patterns("render"))
+    (_edit_checkpoint if file.endswith(".pt") else _edit_json)(run / file, edit)
+    assert main([str(run), "--quiet", "--frames", "2"]) == 2
+    assert needle in _error(capsys)
+
+
+def test_a_run_json_that_is_not_an_object_is_named(runs, tmp_path, capsys):
+    run = tmp_path / "run"
+    shutil.copytree(runs.base, run, ignore=shutil.ignore_patterns("render"))
+    (run / "run.json").write_text("[1, 2]")
+    assert main([str(run), "--quiet"]) == 2
+    assert f"{run / 'run.json'}: expected a JSON object" in _error(capsys)
+
+
+def test_the_occupancy_grid_of_the_checkpoint_is_used(runs, tmp_path):
+    """A checkpoint whose grid marks every cell empty renders nothing: the grid is loaded and used."""
+    run_dir = tmp_path / "run"
+    shutil.copytree(runs.base, run_dir, ignore=shutil.ignore_patterns("render"))
+
+    def empty_grid(state):
+        state["occupancy"]["mask"] = state["occupancy"]["mask"] & False
+        state["occupancy"]["density_grid"] = state["occupancy"]["density_grid"] * 0.0
+    _edit_checkpoint(run_dir / "checkpoints" / "iter_0_train.pt", empty_grid)
+    run = load_fitted_run(run_dir)
+    c2w, ks = path_cameras(run, "test", 0)
+    frames = render_frames(run, c2w[:1], ks[:1], progress=False)
+    assert frames["acc"].max() == 0.0
+    assert (frames["rgb"] == 255).all()   # the white background only
+    full = render_frames(load_fitted_run(runs.base), c2w[:1], ks[:1], progress=False)
+    assert full["acc"].max() > 0.5        # the same view with the fitted grid is not empty
+
+
+def _k(f):
+    from senerf.geometry import Intrinsics
+    return Intrinsics(f, f, 8.0, 8.0, 16, 16)
+
+
+def test_each_path_takes_the_intrinsics_of_its_own_views():
+    from senerf.geometry import look_at
+    eyes = np.array([[4.0, 0.0, 1.0], [0.0, 4.0, 1.0], [-4.0, 0.0, 1.0], [0.0, -4.0, 1.0]])
+    c2w = look_at(eyes, np.zeros(3), up=(0.0, 0.0, 1.0))
+    scene = types.SimpleNamespace(c2w=c2w, intrinsics_all=[_k(10.0), _k(20.0), _k(30.0), _k(40.0)], near=1.0, far=8.0)
+    run = types.SimpleNamespace(scene=scene, model=types.SimpleNamespace(ndc=False),
+                                train_idx=np.array([2, 1]), test_idx=np.array([3, 0]))
+    _, ks = path_cameras(run, "test", 0)
+    assert [k.fx for k in ks] == [40.0, 10.0]
+    _, ks = path_cameras(run, "test", 0, scale=2.0)
+    assert [(k.fx, k.width) for k in ks] == [(80.0, 32), (20.0, 32)]
+    for path in ("orbit", "spiral"):
+        _, ks = path_cameras(run, path, 3)
+        assert [k.fx for k in ks] == [30.0] * 3   # the first training view's
+
+
+def test_one_training_view_orbits_the_point_all_the_scenes_cameras_look_at():
+    """One input camera has no point it looks at by itself: the orbit falls back on all the scene's cameras."""
+    from senerf.geometry import look_at
+    eyes = np.array([[4.0, 0.0, 1.0], [0.0, 3.0, 2.0], [-2.0, -2.0, 1.0]])
+    scene = types.SimpleNamespace(c2w=look_at(eyes, np.zeros(3), up=(0.0, 0.0, 1.0)),
+                                  intrinsics_all=[_k(10.0)] * 3, near=None, far=None)
+    run = types.SimpleNamespace(scene=scene, model=types.SimpleNamespace(ndc=False), train_idx=np.array([1]))
+    c2w, _ = path_cameras(run, "orbit", 4, elevation=30.0)
+    r = np.linalg.norm(eyes[1])
+    for pose in c2w:   # about the origin, at input 1's distance, 30 degrees above the horizon of its image up
+        np.testing.assert_allclose(np.linalg.norm(pose[:3, 3]), r, atol=1e-9)
+        np.testing.assert_allclose(pose[:3, 2], -pose[:3, 3] / r, atol=1e-9)
+        np.testing.assert_allclose(np.degrees(np.arcsin(pose[:3, 3] @ -scene.c2w[1, :3, 1] / r)), 30.0, atol=1e-9)
+
+
+def test_the_spiral_of_an_object_scene_focuses_on_the_point_the_cameras_look_at():
+    from senerf.geometry import look_at, spiral_path
+    eyes = np.array([[4.0, 0.0, 1.0], [0.0, 4.0, 1.0], [-4.0, 0.0, 1.0], [0.0, -4.0, 1.0]])
+    scene = types.SimpleNamespace(c2w=look_at(eyes, np.zeros(3), up=(0.0, 0.0, 1.0)),
+                                  intrinsics_all=[_k(10.0)] * 4, near=None, far=None)
+    run = types.SimpleNamespace(scene=scene, model=types.SimpleNamespace(ndc=False), train_idx=np.array([0, 1]))
+    c2w, _ = path_cameras(run, "spiral", 5)
+    # by hand: the inputs' mean centre is (2, 2, 1), the origin is sqrt(4 + 4 + 1) = 3 from it
+    np.testing.assert_allclose(c2w, spiral_path(scene.c2w[[0, 1]], 5, focus_depth=3.0), atol=1e-12)
+
+
+def test_depth_colours_span_the_1st_to_99th_percentile_of_opaque_pixels(monkeypatch):
+    import senerf.train
+
+    # 101 opaque pixels at depths 0..100 (1st / 99th percentiles exactly 1 and 99), 20 half-transparent and 7
+    # empty ones far away (left out of the range), in two frames of 8 x 8
+    z = np.full(128, 1000.0)
+    acc = np.zeros(128)
+    z[:101], acc[:101], acc[101:121] = np.arange(101.0), 1.0, 0.3
+    rgb = np.zeros((128, 3))
+    rgb[0], rgb[1] = -0.5, 1.5   # out-of-range colours are clipped, not wrapped around
+    fake = dict(rgb=rgb.reshape(2, 8, 8, 3), z_depth=z.reshape(2, 8, 8), acc=acc.reshape(2, 8, 8))
+    monkeypatch.setattr(senerf.train, "render_views", lambda *a, **k: fake)
+    for background, grey in (("white", 255), ("black", 0)):
+        run = types.SimpleNamespace(field=None, model=types.SimpleNamespace(eval_background=background), occupancy=None)
+        out = render_frames(run, np.zeros((2, 4, 4)), None, progress=False)
+        depth = out["depth"].reshape(128, 3)
+        np.testing.assert_array_equal(depth[0], depth[1])       # depth 0 clipped to the 1st percentile, 1
+        np.testing.assert_array_equal(depth[100], depth[99])    # depth 100 clipped to the 99th, 99
+        assert not np.array_equal(depth[1], depth[2]) and not np.array_equal(depth[98], depth[99])
+        assert (depth[121:] == grey).all()                      # empty pixels: the background
+        assert out["rgb"].reshape(128, 3)[:2].tolist() == [[0, 0, 0], [255, 255, 255]]
+
+
+def test_write_frames_gifs_loop_and_the_folder_is_readable(tmp_path):
+    from senerf.flythrough import write_frames
+
+    rgb = np.stack([np.full((4, 4, 3), v, np.uint8) for v in (0, 120, 240)])
+    out = write_frames(tmp_path / "w", dict(rgb=rgb, depth=rgb[::-1]), {"senerf_render": "x"}, fps=25.0)
+    for name in ("rgb", "depth"):
+        meta = iio.immeta(out / f"{name}.gif")
+        assert meta["loop"] == 0 and meta["duration"] == 40   # forever, 1000 / 25 ms a frame
+    assert out.stat().st_mode & 0o777 == 0o755               # not mkdtemp's owner-only 0o700
+
+
+def test_forward_facing_runs_default_to_the_spiral_of_60_frames(runs, tmp_path, capsys, monkeypatch):
+    import dataclasses
+
+    import senerf.flythrough
+
+    real = senerf.flythrough.load_fitted_run
+
+    def forward_facing(*a, **k):
+        run = real(*a, **k)
+        return dataclasses.replace(run, scene=dataclasses.replace(run.scene, kind="forward_facing", near=2.0, far=6.0))
+    rendered = []
+
+    def stop(run, c2w, intrinsics, **k):
+        rendered.append(len(c2w))
+        raise KeyboardInterrupt
+    monkeypatch.setattr(senerf.flythrough, "load_fitted_run", forward_facing)
+    monkeypatch.setattr(senerf.flythrough, "render_frames", stop)
+    assert main([str(runs.base), "--out", str(tmp_path / "o"), "--quiet"]) == 130
+    assert "spiral path: 60 frames at 16x16" in capsys.readouterr().out and rendered == [60]
+    assert main([str(runs.base), "--out", str(tmp_path / "o"), "--elevation", "10"]) == 2
+    assert "--elevation: applies to --path orbit only" in _error(capsys)
+
+
+def test_flag_and_out_problems_are_found_before_the_run_is_loaded(runs, tmp_path, capsys):
+    empty = tmp_path / "empty"      # not a run: loading it would fail with "run.json: not found"
+    empty.mkdir()
+    assert main([str(empty), "--path", "spiral", "--elevation", "10"]) == 2
+    assert "--elevation: applies to --path orbit only" in _error(capsys)
+    taken = tmp_path / "taken"
+    taken.mkdir()
+    assert main([str(empty), "--out", str(taken)]) == 2
+    assert f"{taken}: exists; use --overwrite" in _error(capsys)
+    afile = tmp_path / "afile"
+    afile.write_text("x")
+    assert main([str(runs.base), "--out", str(afile), "--overwrite"]) == 2
+    assert f"{afile}: exists and is not a folder" in _error(capsys)
+    theirs = tmp_path / "theirs"
+    theirs.mkdir()
+    (theirs / "path.json").write_text("[1, 2]")   # JSON, but not ours
+    assert main([str(runs.base), "--out", str(theirs), "--overwrite"]) == 2
+    assert "is not a senerf-render output" in _error(capsys)
+    assert (theirs / "path.json").read_text() == "[1, 2]"
+
+
+def test_flag_defaults_and_bounds():
+    from senerf.errors import InputError
+    from senerf.flythrough import build_parser
+
+    args = build_parser().parse_args(["run"])
+    assert args.fps == 20.0 and args.frames is None and args.scale == 1.0 and args.path is None
+    for ok in ("--elevation=-89", "--elevation=89", "--frames=10000"):
+        build_parser().parse_args(["run", ok])
+    for bad in ("--elevation=-89.5", "--frames=10001"):
+        with pytest.raises(InputError):
+            build_parser().parse_args(["run", bad])
+
+
+def test_a_path_that_would_not_fit_in_memory_is_refused_at_80_percent(monkeypatch):
+    import os
+
+    from senerf.errors import InputError
+    from senerf.flythrough import _check_memory
+
+    pages = {os.sysconf_names["SC_PAGE_SIZE"]: 4096, os.sysconf_names["SC_PHYS_PAGES"]: 2 ** 18}   # 1 GiB
+    monkeypatch.setattr(os, "sysconf", lambda name: pages[os.sysconf_names[name] if isinstance(name, str) else name])
+    k = types.SimpleNamespace(width=1024, height=1024)   # 32 bytes a pixel: 32 MiB a frame
+    _check_memory([k] * 25)                              # 800 MiB < 0.8 GiB = 819.2 MiB
+    with pytest.raises(InputError, match=r"26 frames at 1024x1024 need about 0\.8 GiB of memory, this machine has 1\.0"):
+        _check_memory([k] * 26)                          # 832 MiB = 0.8125 GiB
+
+
+def test_a_nerf_field_renders_with_the_band_weights_it_was_scored_with(runs, tmp_path):
+    """The frequency-annealing weights are part of the checkpoint: after 1 step only the first bands are on,
+    and switching them all on when loading (as before) rendered a field senerf-fit never scored."""
+    run = tmp_path / "nerf"
+    assert fit([str(runs.scene), "--protocol", "all", "--out", str(run), "--iterations", "0", "--field", "nerf",
+                *FIT, "--steps", "1"]) == 0
+    assert load_fitted_run(run).field.band_weights.min() < 1.0
+    out = tmp_path / "t"
+    assert main([str(run), "--path", "test", "--out", str(out), "--quiet"]) == 0
+    for png in sorted((run / "iter_0" / "test").glob("rgb_*.png")):
+        np.testing.assert_array_equal(iio.imread(out / png.name), iio.imread(png))

@@ -476,9 +476,7 @@ def _load_teacher(path: Path, model, cfg_train, settings: dict, device):
     _check_settings(path, state, settings)
     iteration = int(state["iteration"])
     field = build_field(model, seed=cfg_train.seed, steps=cfg_train.steps).to(device)
-    load_state_keeping_box(field, state["field"])
-    if hasattr(field, "set_progress"):
-        field.set_progress(cfg_train.steps)
+    load_state_keeping_box(field, state["field"])   # a NeRF field's annealing weights included, as trained
     field.eval()
     occupancy = make_occupancy(model, device)
     if occupancy is not None and "occupancy" in state:

@@ -163,3 +163,37 @@ def test_spiral_focus_depth_golden_and_errors():
     opposed = np.stack([np.eye(4), np.diag([-1.0, 1.0, -1.0, 1.0])])
     with pytest.raises(ValueError, match="cancel out"):
         spiral_path(opposed, 3, focus_depth=1.0)
+
+
+def test_orbit_uses_the_mean_not_the_median_elevation_and_distance():
+    # by hand: elevations 10, 20, 60 -> mean 30 (median 20); distances 2, 3, 7 -> mean 4 (median 3)
+    center = np.array([0.5, -1.0, 2.0])
+    inputs = _inputs_looking_at(center, azs=[0.0, 120.0, 240.0], els=[10.0, 20.0, 60.0], rs=[2.0, 3.0, 7.0])
+    path = orbit_path(inputs, 3)
+    for k, az in enumerate([0.0, 120.0, 240.0]):
+        np.testing.assert_allclose(path[k, :3, 3], _by_hand_position(center, az, 30.0, 4.0), atol=1e-9)
+
+
+def test_spiral_input_checks_cover_every_argument():
+    eye = np.eye(4)[None]
+    # near == far is allowed (0 < near <= far); by hand 1 / (0.25 / 1.8 + 0.75 / 10) = 1 / (77 / 360) = 360 / 77
+    assert spiral_focus_depth(2.0, 2.0) == pytest.approx(360.0 / 77.0, rel=1e-12)
+    with pytest.raises(ValueError, match="focus_depth must be positive and finite"):
+        spiral_path(eye, 3, focus_depth=np.inf)
+    for bad in (None, "x", np.nan, np.inf):
+        with pytest.raises(ValueError, match="z_rate must be a finite number"):
+            spiral_path(eye, 3, focus_depth=1.0, z_rate=bad)
+    for bad in ((0.5,), (1.0, 1.0), (1.0, np.nan, 0.0), (1.0, np.inf, 0.0)):
+        with pytest.raises(ValueError, match="radii must be 3 finite numbers"):
+            spiral_path(eye, 3, focus_depth=1.0, radii=bad)
+    rolled = np.stack([np.eye(4), np.diag([-1.0, -1.0, 1.0, 1.0])])   # same optical axis, image-up axes opposed
+    with pytest.raises(ValueError, match="cancel out"):
+        spiral_path(rolled, 3, focus_depth=1.0)
+
+
+def test_spiral_refuses_a_frame_within_a_relative_tolerance_of_the_focus_point():
+    # the test is relative to the focus depth: at focus 1e4 an eye 1e-6 from the focus point is refused
+    # (by hand: frame 1 has theta = pi / 2, so its offset is (0, 0, radii_z * sin(pi / 2)) = (0, 0, 1e4 - 1e-6))
+    with pytest.raises(ValueError, match="focus point"):
+        spiral_path(np.eye(4)[None], 4, focus_depth=1e4, radii=(0.0, 0.0, 1e4 - 1e-6), rotations=1.0, z_rate=1.0)
+    spiral_path(np.eye(4)[None], 4, focus_depth=1e4, radii=(0.0, 0.0, 1e4 - 1e-3), rotations=1.0, z_rate=1.0)

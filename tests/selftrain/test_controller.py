@@ -518,3 +518,22 @@ def test_pseudo_views_keep_their_source_views_intrinsics(tiny_scene, tmp_path, m
                                         SelfTrainConfig(iterations=1, n_pseudo_per_input=2, features="daisy"),
                                         tmp_path / "run", progress=False, echo=lambda s: None)
     assert seen["pseudo_intrinsics"] == tuple(kk) * 2
+
+
+def test_a_resumed_teacher_keeps_the_annealing_weights_it_was_saved_with(tmp_path):
+    """A NeRF teacher saved after 1 training step has its high frequencies off; resuming used to switch
+    them all on (set_progress(steps)), so the resumed run's pseudo labels came from another field."""
+    from senerf.train import ModelConfig, TrainConfig, build_field
+
+    model = ModelConfig(field="nerf", occupancy_resolution=0)
+    cfg = TrainConfig(steps=1)
+    field = build_field(model, seed=0, steps=cfg.steps)
+    field.set_progress(0)                      # what the trainer sets before its only step
+    saved = field.band_weights.clone()
+    assert saved.max() < 1.0
+    settings = {"config": {"selftrain": {}}, "scene": "s"}
+    path = tmp_path / "teacher.pt"
+    controller_mod._save_teacher(path, field, None, 0, settings, [])
+    loaded, _, iteration, _ = controller_mod._load_teacher(path, model, cfg, settings, "cpu")
+    assert iteration == 0
+    assert loaded.band_weights.tolist() == saved.tolist()
