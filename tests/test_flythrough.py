@@ -240,6 +240,15 @@ def _nan_field(state):
     ("metrics.json", lambda m: m["iterations"][0].update(iteration=False), "metrics.json: holds no finished iteration"),
     ("checkpoints/iter_0_train.pt", lambda s: s.update(field=5), "iter_0_train.pt: its field is not a state dict"),
     ("checkpoints/iter_0_train.pt", _nan_field, "iter_0_train.pt: its field holds non-finite values"),
+    ("run.json", lambda r: r.update(scene_dir=5), "run.json: scene_dir: missing or of the wrong type"),
+    ("run.json", lambda r: r.update(downscale=float("inf")), "run.json: downscale: expected a number >= 1, got inf"),
+    ("metrics.json", lambda m: m.update(train_views=[0, 8]),   # the scene has 8 views: 5 train, 3 test
+     "metrics.json: train_views: expected a non-empty list of view indices in [0, 8)"),
+    ("metrics.json", lambda m: m.update(train_views=[True, 1]), "metrics.json: train_views: expected a non-empty list"),
+    ("checkpoints/iter_0_train.pt", lambda s: s.update(format="other"),
+     "iter_0_train.pt: not a senerf training checkpoint"),
+    ("checkpoints/iter_0_train.pt", lambda s: s["field"].update({5: s["field"][next(iter(s["field"]))]}),
+     "iter_0_train.pt: its field does not fit the run's model"),
 ])
 def test_a_damaged_run_folder_is_one_line_naming_the_file_and_field(runs, tmp_path, capsys, file, edit, needle):
     run = tmp_path / "run"
@@ -275,25 +284,6 @@ def test_an_out_that_cannot_be_created_is_refused_before_rendering(runs, tmp_pat
     assert main([str(runs.base), "--out", str(tmp_path / "sub" / "o"), "--quiet"]) == 2
     assert "cannot write there (Permission denied); choose another --out" in _error(capsys)
     assert rendered == []
-
-
-@pytest.mark.parametrize("file, edit, needle", [
-    ("run.json", lambda r: r.update(scene_dir=5), "run.json: scene_dir: missing or of the wrong type"),
-    ("run.json", lambda r: r.update(downscale=float("inf")), "run.json: downscale: expected a number >= 1, got inf"),
-    ("metrics.json", lambda m: m.update(train_views=[0, 8]),   # the scene has 8 views: 5 train, 3 test
-     "metrics.json: train_views: expected a non-empty list of view indices in [0, 8)"),
-    ("metrics.json", lambda m: m.update(train_views=[True, 1]), "metrics.json: train_views: expected a non-empty list"),
-    ("checkpoints/iter_0_train.pt", lambda s: s.update(format="other"),
-     "iter_0_train.pt: not a senerf training checkpoint"),
-    ("checkpoints/iter_0_train.pt", lambda s: s["field"].update({5: s["field"][next(iter(s["field"]))]}),
-     "iter_0_train.pt: its field does not fit the run's model"),
-])
-def test_more_damaged_run_folder_values_are_named(runs, tmp_path, capsys, file, edit, needle):
-    run = tmp_path / "run"
-    shutil.copytree(runs.base, run, ignore=shutil.ignore_patterns("render"))
-    (_edit_checkpoint if file.endswith(".pt") else _edit_json)(run / file, edit)
-    assert main([str(run), "--quiet", "--frames", "2"]) == 2
-    assert needle in _error(capsys)
 
 
 def test_a_run_json_that_is_not_an_object_is_named(runs, tmp_path, capsys):
