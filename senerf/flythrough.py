@@ -9,7 +9,8 @@ The field is the one a finished iteration ended with (``checkpoints/iter_K_train
 ``weights_only=True``); the scene folder named in ``run.json`` gives the cameras.  Outputs go to a new folder
 (default ``RUN/render/<path>_iter<K>``): ``rgb_XXX.png``, ``depth_XXX.png`` (one depth colour range for the
 whole path, so the colours do not flicker), ``rgb.gif``, ``depth.gif`` and ``path.json`` (the poses, OpenCV
-camera-to-world in the scene's world frame, and the intrinsics).  Nothing is written until every frame is
+camera-to-world in the scene's world frame, and the intrinsics); with ``--compare`` also ``compare.gif``, the
+teacher (iteration 0) beside the rendered iteration along the same path.  Nothing is written until every frame is
 rendered; the folder appears whole, by one rename.
 
 Exit status: 0 done, 2 bad input (one line ``senerf-render: error: ...`` naming the file or flag), 130
@@ -24,6 +25,7 @@ import os
 import shutil
 import sys
 import tempfile
+import dataclasses
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -33,7 +35,8 @@ from senerf import __version__
 from senerf.cliargs import OneLineParser, check_device, float_flag, int_flag, run_command
 from senerf.errors import InputError
 
-__all__ = ["FittedRun", "load_fitted_run", "path_cameras", "render_frames", "write_frames", "main", "PATHS"]
+__all__ = ["FittedRun", "load_fitted_run", "with_iteration", "path_cameras", "render_frames", "side_by_side",
+           "write_frames", "main", "PATHS"]
 
 PROG = "senerf-render"
 #: The camera paths ``senerf-render`` draws.
@@ -53,6 +56,8 @@ class FittedRun:
         occupancy: its occupancy grid, or ``None``.
         iteration: the iteration (0 = the teacher).
         train_idx, test_idx: ``(m,)``, ``(t,)`` the run's view indices into the scene.
+        seed, steps: the run's initialisation seed and training steps (to rebuild its fields).
+        finished: the run's finished iterations, ascending.
     """
 
     folder: Path
@@ -63,6 +68,9 @@ class FittedRun:
     iteration: int
     train_idx: np.ndarray
     test_idx: np.ndarray
+    seed: int = 0
+    steps: int = 1
+    finished: tuple = ()
 
 
 def _read_json(path: Path) -> dict:
@@ -136,10 +144,7 @@ def load_fitted_run(folder, iteration: int | None = None, device: str = "cpu") -
             iteration (or not ``iteration``), a missing or foreign checkpoint, a scene folder that no longer
             matches the run.
     """
-    import torch
-
     from senerf.data import load_scene
-    from senerf.train import build_field, load_checkpoint, make_occupancy
 
     folder = Path(folder)
     if not folder.is_dir():
@@ -168,6 +173,16 @@ def load_fitted_run(folder, iteration: int | None = None, device: str = "cpu") -
                          f"was fitted at {resolution!r}"[:200], file=scene_dir)
     train_idx = _views(metrics, "train_views", metrics_path, scene.n_images)
     test_idx = _views(metrics, "test_views", metrics_path, scene.n_images)
+    field, occupancy = _load_field(folder, model, k, seed, steps, device)
+    return FittedRun(folder, scene, model, field, occupancy, k, train_idx, test_idx, seed, steps, tuple(done))
+
+
+def _load_field(folder: Path, model, k: int, seed: int, steps: int, device: str):
+    """The field (eval mode) and occupancy grid iteration ``k`` ended with, from ``iter_K_train.pt``."""
+    import torch
+
+    from senerf.train import build_field, load_checkpoint, make_occupancy
+
     ckpt = folder / "checkpoints" / f"iter_{k}_train.pt"
     if not ckpt.is_file():
         raise InputError("missing: the run's checkpoints were removed", file=ckpt)
@@ -181,7 +196,16 @@ def load_fitted_run(folder, iteration: int | None = None, device: str = "cpu") -
         _load_state(occupancy, state["occupancy"], "occupancy grid", ckpt, allow_inf=True)
     field = field.to(torch.device(device)).eval()
     occupancy = None if occupancy is None else occupancy.to(torch.device(device))
-    return FittedRun(folder, scene, model, field, occupancy, k, train_idx, test_idx)
+    return field, occupancy
+
+
+def with_iteration(run: FittedRun, iteration: int, device: str = "cpu") -> FittedRun:
+    """``run`` with the field of another finished ``iteration`` (the scene is not read again)."""
+    if iteration not in run.finished:
+        raise InputError(f"iteration {iteration} is not finished in this run (finished: {list(run.finished)})",
+                         field="--iteration")
+    field, occupancy = _load_field(run.folder, run.model, iteration, run.seed, run.steps, device)
+    return dataclasses.replace(run, field=field, occupancy=occupancy, iteration=iteration)
 
 
 def path_cameras(run: FittedRun, path: str, frames: int, scale: float = 1.0, elevation: float | None = None):
@@ -265,9 +289,30 @@ def render_frames(run: FittedRun, c2w: np.ndarray, intrinsics, device=None, prog
     return dict(rgb=rgb, depth=depth, z_depth=out["z_depth"], acc=out["acc"])
 
 
-def write_frames(out: Path, frames: dict, record: dict, fps: float, overwrite: bool = False) -> Path:
-    """Write the frames, the two GIFs and ``path.json`` into a temporary sibling of ``out``, then rename it
-    to ``out``.  An existing ``out`` is replaced only with ``overwrite`` and only when it is a senerf-render
+def side_by_side(left: np.ndarray, right: np.ndarray, labels: tuple[str, str], header: int = 18,
+                 gap: int = 4) -> np.ndarray:
+    """Two uint8 frame stacks ``(n, H, W, 3)`` beside each other, white ``gap`` between them, each labelled in
+    a white ``header`` above it: ``(n, header + H, 2 W + gap, 3)`` uint8."""
+    from PIL import Image, ImageDraw
+
+    left, right = np.asarray(left, np.uint8), np.asarray(right, np.uint8)
+    if left.shape != right.shape or left.ndim != 4 or left.shape[-1] != 3:
+        raise ValueError(f"expected two (n, H, W, 3) stacks of one shape, got {left.shape} and {right.shape}")
+    n, h, w, _ = left.shape
+    out = np.full((n, header + h, 2 * w + gap, 3), 255, np.uint8)
+    out[:, header:, :w], out[:, header:, w + gap:] = left, right
+    title = Image.new("RGB", (2 * w + gap, header), (255, 255, 255))
+    draw = ImageDraw.Draw(title)
+    draw.text((2, 3), labels[0], fill=(0, 0, 0))
+    draw.text((w + gap + 2, 3), labels[1], fill=(0, 0, 0))
+    out[:, :header] = np.asarray(title)
+    return out
+
+
+def write_frames(out: Path, frames: dict, record: dict, fps: float, overwrite: bool = False,
+                 compare: np.ndarray | None = None) -> Path:
+    """Write the frames, the two GIFs (and ``compare.gif`` of ``compare (n, H', W', 3)`` uint8 when given) and
+    ``path.json`` into a temporary sibling of ``out``, then rename it to ``out``.  An existing ``out`` is replaced only with ``overwrite`` and only when it is a senerf-render
     folder (it holds ``path.json`` written by this command)."""
     import imageio.v3 as iio
 
@@ -281,8 +326,9 @@ def write_frames(out: Path, frames: dict, record: dict, fps: float, overwrite: b
             write_png(tmp / f"rgb_{i:03d}.png", rgb)
             write_png(tmp / f"depth_{i:03d}.png", depth)
         duration = 1000.0 / fps
-        for name in ("rgb", "depth"):
-            iio.imwrite(tmp / f"{name}.gif", frames[name], extension=".gif", duration=duration, loop=0)
+        gifs = dict(rgb=frames["rgb"], depth=frames["depth"], **({} if compare is None else dict(compare=compare)))
+        for name, stack in gifs.items():
+            iio.imwrite(tmp / f"{name}.gif", stack, extension=".gif", duration=duration, loop=0)
         (tmp / _MARKER).write_text(json.dumps(record, indent=1))
         os.chmod(tmp, 0o755)
         if out.exists():
@@ -347,7 +393,8 @@ def build_parser() -> argparse.ArgumentParser:
     """The ``senerf-render`` argument parser (errors raise :class:`InputError`)."""
     p = OneLineParser(prog=PROG, description="Render a finished senerf-fit run along a camera path.",
                       epilog="Writes into --out (default RUN/render/<path>_iter<K>): rgb_XXX.png, depth_XXX.png, "
-                             "rgb.gif, depth.gif and path.json (poses: OpenCV camera-to-world, the scene's "
+                             "rgb.gif, depth.gif (with --compare also compare.gif) and path.json (poses: OpenCV "
+                             "camera-to-world, the scene's "
                              "world frame). Exit status: 0 done, 2 bad input, 130 interrupted, 1 internal error.")
     p.add_argument("run", type=Path, help="a senerf-fit output folder (its --out)")
     p.add_argument("--path", choices=PATHS, default=None,
@@ -363,6 +410,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="render at this multiple of the fitted resolution (default 1)")
     p.add_argument("--elevation", type=float_flag("--elevation", -89.0, maximum=89.0), default=None, metavar="DEG",
                    help="orbit elevation, -89 to 89 (default: the input views' mean)")
+    p.add_argument("--compare", action="store_true",
+                   help="also write compare.gif: the teacher (iteration 0) beside the rendered iteration")
     p.add_argument("--out", type=Path, help="output folder (default RUN/render/<path>_iter<K>)")
     p.add_argument("--overwrite", action="store_true", help="replace an earlier senerf-render output in --out")
     p.add_argument("--device", default="cpu", help="cpu, cuda or cuda:N")
@@ -388,18 +437,28 @@ def _run(args, argv: list[str]) -> int:
     out = args.out if args.out is not None else run.folder / "render" / f"{path}_iter{run.iteration}"
     _check_out(out, args.overwrite)
     c2w, intrinsics = path_cameras(run, path, args.frames or 60, args.scale, args.elevation)
-    _check_memory(intrinsics)
+    if args.compare and run.iteration == 0:
+        raise InputError("compares the teacher (iteration 0) with a self-training iteration; this one is 0",
+                         field="--compare")
+    _check_memory(intrinsics * (2 if args.compare else 1))
     shutil.rmtree(_temp_sibling(out))   # the folder can be written: found out before rendering, not after
     print(f"{PROG}: {run.scene.name}, iteration {run.iteration}, {path} path: {len(c2w)} frames at "
           f"{intrinsics[0].width}x{intrinsics[0].height}")
     frames = render_frames(run, c2w, intrinsics, device=device, progress=not args.quiet)
+    compare = None
+    if args.compare:
+        teacher = render_frames(with_iteration(run, 0, device), c2w, intrinsics, device=device,
+                                progress=not args.quiet)
+        compare = side_by_side(teacher["rgb"], frames["rgb"],
+                               ("iteration 0 (teacher)", f"iteration {run.iteration} (SE-NeRF)"))
     record = dict(senerf_render=__version__, command=argv, run=str(run.folder.resolve()), iteration=run.iteration,
                   path=path, fps=args.fps, convention="OpenCV camera-to-world (x right, y down, z forward), the "
                   "scene's world frame; intrinsics fx, fy, cx, cy, width, height (pixel centres at i + 0.5)",
                   intrinsics=[[k.fx, k.fy, k.cx, k.cy, k.width, k.height] for k in intrinsics],
                   c2w=c2w.tolist())
-    written = write_frames(out, frames, record, args.fps, args.overwrite)
-    print(f"{PROG}: {len(c2w)} frames, rgb.gif and depth.gif in {written}")
+    written = write_frames(out, frames, record, args.fps, args.overwrite, compare=compare)
+    gifs = "rgb.gif, depth.gif and compare.gif" if compare is not None else "rgb.gif and depth.gif"
+    print(f"{PROG}: {len(c2w)} frames, {gifs} in {written}")
     return 0
 
 

@@ -475,3 +475,34 @@ def test_a_nerf_field_renders_with_the_band_weights_it_was_scored_with(runs, tmp
     assert main([str(run), "--path", "test", "--out", str(out), "--quiet"]) == 0
     for png in sorted((run / "iter_0" / "test").glob("rgb_*.png")):
         np.testing.assert_array_equal(iio.imread(out / png.name), iio.imread(png))
+
+
+def test_compare_puts_the_teacher_beside_the_rendered_iteration(runs, tmp_path, capsys):
+    teacher, last, both = tmp_path / "t", tmp_path / "l", tmp_path / "b"
+    common = ["--frames", "3", "--quiet"]
+    assert main([str(runs.st), "--iteration", "0", "--out", str(teacher), *common]) == 0
+    assert main([str(runs.st), "--out", str(last), *common]) == 0
+    assert main([str(runs.st), "--out", str(both), "--compare", *common]) == 0
+    assert "rgb.gif, depth.gif and compare.gif" in capsys.readouterr().out
+    gif = iio.imread(both / "compare.gif", index=None)[..., :3]
+    assert gif.shape == (3, 18 + 16, 16 + 4 + 16, 3)
+    def mad(a, b):   # mean absolute difference: a GIF holds 256 colours, so the halves are near, not equal
+        return np.abs(a.astype(float) - b.astype(float)).mean()
+    for i in range(3):
+        t, s = iio.imread(teacher / f"rgb_{i:03d}.png"), iio.imread(last / f"rgb_{i:03d}.png")
+        assert mad(gif[i, 18:, :16], t) < 1.5 < mad(gif[i, 18:, :16], s)
+        assert mad(gif[i, 18:, 20:], s) < 1.5 < mad(gif[i, 18:, 20:], t)
+        assert (gif[i, 18:, 16:20] == 255).all() and (gif[i, :18] < 128).any()   # the gap, and the labels
+    np.testing.assert_array_equal(iio.imread(both / "rgb_001.png"), iio.imread(last / "rgb_001.png"))
+    assert main([str(runs.base), "--out", str(tmp_path / "z"), "--compare", *common]) == 2
+    assert "--compare: compares the teacher (iteration 0) with a self-training iteration" in _error(capsys)
+    assert not (tmp_path / "z").exists()
+
+
+def test_side_by_side_checks_its_stacks():
+    from senerf.flythrough import side_by_side
+
+    a = np.zeros((2, 5, 6, 3), np.uint8)
+    assert side_by_side(a, a, ("l", "r"), header=10, gap=2).shape == (2, 15, 14, 3)
+    with pytest.raises(ValueError, match="one shape"):
+        side_by_side(a, a[:1], ("l", "r"))
