@@ -20,12 +20,12 @@ interrupted, 1 internal error.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import os
 import shutil
 import sys
 import tempfile
-import dataclasses
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -68,9 +68,9 @@ class FittedRun:
     iteration: int
     train_idx: np.ndarray
     test_idx: np.ndarray
-    seed: int = 0
-    steps: int = 1
-    finished: tuple = ()
+    seed: int
+    steps: int
+    finished: tuple
 
 
 def _read_json(path: Path) -> dict:
@@ -292,28 +292,31 @@ def render_frames(run: FittedRun, c2w: np.ndarray, intrinsics, device=None, prog
 def side_by_side(left: np.ndarray, right: np.ndarray, labels: tuple[str, str], header: int = 18,
                  gap: int = 4) -> np.ndarray:
     """Two uint8 frame stacks ``(n, H, W, 3)`` beside each other, white ``gap`` between them, each labelled in
-    a white ``header`` above it: ``(n, header + H, 2 W + gap, 3)`` uint8."""
+    a white ``header`` above it (a label wider than its panel is cut at the panel's edge):
+    ``(n, header + H, 2 W + gap, 3)`` uint8."""
     from PIL import Image, ImageDraw
 
-    left, right = np.asarray(left, np.uint8), np.asarray(right, np.uint8)
+    left, right = np.asarray(left), np.asarray(right)
+    if left.dtype != np.uint8 or right.dtype != np.uint8:
+        raise ValueError(f"expected uint8 frames, got {left.dtype} and {right.dtype}")
     if left.shape != right.shape or left.ndim != 4 or left.shape[-1] != 3:
         raise ValueError(f"expected two (n, H, W, 3) stacks of one shape, got {left.shape} and {right.shape}")
     n, h, w, _ = left.shape
     out = np.full((n, header + h, 2 * w + gap, 3), 255, np.uint8)
     out[:, header:, :w], out[:, header:, w + gap:] = left, right
-    title = Image.new("RGB", (2 * w + gap, header), (255, 255, 255))
-    draw = ImageDraw.Draw(title)
-    draw.text((2, 3), labels[0], fill=(0, 0, 0))
-    draw.text((w + gap + 2, 3), labels[1], fill=(0, 0, 0))
-    out[:, :header] = np.asarray(title)
+    for label, x in zip(labels, (0, w + gap)):
+        title = Image.new("RGB", (w, header), (255, 255, 255))
+        ImageDraw.Draw(title).text((2, 3), label, fill=(0, 0, 0))
+        out[:, :header, x:x + w] = np.asarray(title)
     return out
 
 
 def write_frames(out: Path, frames: dict, record: dict, fps: float, overwrite: bool = False,
                  compare: np.ndarray | None = None) -> Path:
-    """Write the frames, the two GIFs (and ``compare.gif`` of ``compare (n, H', W', 3)`` uint8 when given) and
-    ``path.json`` into a temporary sibling of ``out``, then rename it to ``out``.  An existing ``out`` is replaced only with ``overwrite`` and only when it is a senerf-render
-    folder (it holds ``path.json`` written by this command)."""
+    """Write the frames, the two GIFs (and ``compare.gif`` of ``compare (n, H', W', 3)`` uint8 when given)
+    and ``path.json`` into a temporary sibling of ``out``, then rename it to ``out``.  An existing ``out`` is
+    replaced only with ``overwrite`` and only when it is a senerf-render folder (it holds ``path.json``
+    written by this command)."""
     import imageio.v3 as iio
 
     from senerf.train import write_png
@@ -355,17 +358,20 @@ def _temp_sibling(out: Path) -> Path:
         raise InputError(f"cannot write there ({exc.strerror or exc}); choose another --out", file=out) from None
 
 
-def _check_memory(intrinsics) -> None:
+def _check_memory(intrinsics, renders: int = 1) -> None:
     """Refuse a path whose frames would not fit in this machine's memory (~32 bytes a pixel: the float
-    renders and the 8-bit frames are all held until the GIFs are written)."""
-    need = 32.0 * sum(k.width * k.height for k in intrinsics)
+    renders and the 8-bit frames are all held until the GIFs are written), rendered ``renders`` times
+    (2 with ``--compare``)."""
+    need = 32.0 * renders * sum(k.width * k.height for k in intrinsics)
     try:
         have = float(os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES"))
     except (AttributeError, ValueError, OSError):   # not a POSIX system: no check
         return
     if need > 0.8 * have:
         k = intrinsics[0]
-        raise InputError(f"{len(intrinsics)} frames at {k.width}x{k.height} need about {need / 2**30:.1f} GiB of "
+        twice = " twice (--compare)" if renders == 2 else f" {renders} times" if renders > 2 else ""
+        raise InputError(f"{len(intrinsics)} frames at {k.width}x{k.height}{twice} need about "
+                         f"{need / 2**30:.1f} GiB of "
                          f"memory, this machine has {have / 2**30:.1f} GiB; use fewer --frames or a smaller --scale",
                          field="--frames")
 
@@ -394,8 +400,8 @@ def build_parser() -> argparse.ArgumentParser:
     p = OneLineParser(prog=PROG, description="Render a finished senerf-fit run along a camera path.",
                       epilog="Writes into --out (default RUN/render/<path>_iter<K>): rgb_XXX.png, depth_XXX.png, "
                              "rgb.gif, depth.gif (with --compare also compare.gif) and path.json (poses: OpenCV "
-                             "camera-to-world, the scene's "
-                             "world frame). Exit status: 0 done, 2 bad input, 130 interrupted, 1 internal error.")
+                             "camera-to-world, the scene's world frame). Exit status: 0 done, 2 bad input, 130 "
+                             "interrupted, 1 internal error.")
     p.add_argument("run", type=Path, help="a senerf-fit output folder (its --out)")
     p.add_argument("--path", choices=PATHS, default=None,
                    help="orbit (default for object scenes), spiral (default for forward-facing scenes) or test "
@@ -437,22 +443,27 @@ def _run(args, argv: list[str]) -> int:
     out = args.out if args.out is not None else run.folder / "render" / f"{path}_iter{run.iteration}"
     _check_out(out, args.overwrite)
     c2w, intrinsics = path_cameras(run, path, args.frames or 60, args.scale, args.elevation)
-    if args.compare and run.iteration == 0:
-        raise InputError("compares the teacher (iteration 0) with a self-training iteration; this one is 0",
-                         field="--compare")
-    _check_memory(intrinsics * (2 if args.compare else 1))
+    teacher = None
+    if args.compare:   # before rendering: a missing teacher checkpoint is found now, not after the frames
+        if run.iteration == 0:
+            raise InputError("compares the teacher (iteration 0) with a self-training iteration; this one is 0",
+                             field="--compare")
+        if 0 not in run.finished:
+            raise InputError(f"the run has no finished iteration 0 to compare with (finished: {list(run.finished)})",
+                             field="--compare")
+        teacher = with_iteration(run, 0, device)
+    _check_memory(intrinsics, renders=2 if args.compare else 1)
     shutil.rmtree(_temp_sibling(out))   # the folder can be written: found out before rendering, not after
-    print(f"{PROG}: {run.scene.name}, iteration {run.iteration}, {path} path: {len(c2w)} frames at "
-          f"{intrinsics[0].width}x{intrinsics[0].height}")
+    print(f"{PROG}: {run.scene.name}, iteration {run.iteration}{' and the teacher' if teacher else ''}, {path} "
+          f"path: {len(c2w)} frames at {intrinsics[0].width}x{intrinsics[0].height}")
     frames = render_frames(run, c2w, intrinsics, device=device, progress=not args.quiet)
     compare = None
-    if args.compare:
-        teacher = render_frames(with_iteration(run, 0, device), c2w, intrinsics, device=device,
-                                progress=not args.quiet)
-        compare = side_by_side(teacher["rgb"], frames["rgb"],
-                               ("iteration 0 (teacher)", f"iteration {run.iteration} (SE-NeRF)"))
+    if teacher is not None:
+        first = render_frames(teacher, c2w, intrinsics, device=device, progress=not args.quiet)
+        compare = side_by_side(first["rgb"], frames["rgb"], ("teacher", f"iteration {run.iteration}"))
     record = dict(senerf_render=__version__, command=argv, run=str(run.folder.resolve()), iteration=run.iteration,
-                  path=path, fps=args.fps, convention="OpenCV camera-to-world (x right, y down, z forward), the "
+                  compared_with=0 if compare is not None else None, path=path, fps=args.fps,
+                  convention="OpenCV camera-to-world (x right, y down, z forward), the "
                   "scene's world frame; intrinsics fx, fy, cx, cy, width, height (pixel centres at i + 0.5)",
                   intrinsics=[[k.fx, k.fy, k.cx, k.cy, k.width, k.height] for k in intrinsics],
                   c2w=c2w.tolist())

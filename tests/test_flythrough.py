@@ -492,17 +492,49 @@ def test_compare_puts_the_teacher_beside_the_rendered_iteration(runs, tmp_path, 
         t, s = iio.imread(teacher / f"rgb_{i:03d}.png"), iio.imread(last / f"rgb_{i:03d}.png")
         assert mad(gif[i, 18:, :16], t) < 1.5 < mad(gif[i, 18:, :16], s)
         assert mad(gif[i, 18:, 20:], s) < 1.5 < mad(gif[i, 18:, 20:], t)
-        assert (gif[i, 18:, 16:20] == 255).all() and (gif[i, :18] < 128).any()   # the gap, and the labels
+        assert (gif[i, :, 16:20] == 255).all()                                 # the gap, header included:
+        assert (gif[i, :18, :16] < 128).any() and (gif[i, :18, 20:] < 128).any()   # each label within its panel
     np.testing.assert_array_equal(iio.imread(both / "rgb_001.png"), iio.imread(last / "rgb_001.png"))
     assert main([str(runs.base), "--out", str(tmp_path / "z"), "--compare", *common]) == 2
     assert "--compare: compares the teacher (iteration 0) with a self-training iteration" in _error(capsys)
     assert not (tmp_path / "z").exists()
 
 
-def test_side_by_side_checks_its_stacks():
+def test_side_by_side_places_both_stacks_and_checks_them():
     from senerf.flythrough import side_by_side
 
-    a = np.zeros((2, 5, 6, 3), np.uint8)
-    assert side_by_side(a, a, ("l", "r"), header=10, gap=2).shape == (2, 15, 14, 3)
+    a, b = np.full((2, 5, 6, 3), 10, np.uint8), np.full((2, 5, 6, 3), 200, np.uint8)
+    out = side_by_side(a, b, ("l", "r"), header=10, gap=2)
+    assert out.shape == (2, 15, 14, 3)
+    assert (out[:, 10:, :6] == 10).all() and (out[:, 10:, 8:] == 200).all() and (out[:, :, 6:8] == 255).all()
     with pytest.raises(ValueError, match="one shape"):
         side_by_side(a, a[:1], ("l", "r"))
+    with pytest.raises(ValueError, match="uint8"):
+        side_by_side(a.astype(np.float32), a, ("l", "r"))
+
+
+def test_compare_finds_a_missing_teacher_before_rendering(runs, tmp_path, capsys, monkeypatch):
+    import senerf.flythrough
+
+    run = tmp_path / "st"
+    shutil.copytree(runs.st, run, ignore=shutil.ignore_patterns("render"))
+    (run / "checkpoints" / "iter_0_train.pt").unlink()
+    rendered = []
+    monkeypatch.setattr(senerf.flythrough, "render_frames", lambda *a, **k: rendered.append(1))
+    assert main([str(run), "--compare", "--quiet"]) == 2
+    assert "iter_0_train.pt: missing" in _error(capsys) and rendered == []
+    assert not (run / "render").exists()
+
+
+def test_the_memory_check_counts_both_renders_of_compare(monkeypatch):
+    import os
+
+    from senerf.errors import InputError
+    from senerf.flythrough import _check_memory
+
+    pages = {os.sysconf_names["SC_PAGE_SIZE"]: 4096, os.sysconf_names["SC_PHYS_PAGES"]: 2 ** 18}   # 1 GiB
+    monkeypatch.setattr(os, "sysconf", lambda name: pages[os.sysconf_names[name] if isinstance(name, str) else name])
+    k = types.SimpleNamespace(width=1024, height=1024)   # 32 MiB a frame and render
+    _check_memory([k] * 12, renders=2)                   # 768 MiB < 819.2 MiB
+    with pytest.raises(InputError, match=r"13 frames at 1024x1024 twice \(--compare\) need about 0\.8 GiB"):
+        _check_memory([k] * 13, renders=2)               # 832 MiB
