@@ -276,12 +276,11 @@ def render_frames(run: FittedRun, c2w: np.ndarray, intrinsics, device=None, prog
     """Render the path: ``rgb (n, H, W, 3)`` uint8, ``depth (n, H, W, 3)`` uint8 colour-mapped over one
     depth range for all frames (1st-99th percentile of the opaque pixels), ``z_depth``/``acc (n, H, W)``."""
     from senerf.train import depth_to_color, render_views
+    from senerf.train.evaluate import to_uint8
 
     out = render_views(run.field, run.model, intrinsics, c2w, occupancy=run.occupancy, device=device,
                        progress=progress)
-    rgb = np.empty(out["rgb"].shape, np.uint8)
-    for i, frame in enumerate(out["rgb"]):   # as senerf-fit's PNGs (float64 rounding), one frame at a time
-        rgb[i] = np.round(np.clip(frame, 0.0, 1.0).astype(np.float64) * 255.0)
+    rgb = np.stack([to_uint8(frame) for frame in out["rgb"]])   # as senerf-fit's PNGs, a frame at a time
     opaque = out["z_depth"][(out["acc"] > 0.5) & np.isfinite(out["z_depth"])]
     lo, hi = (np.percentile(opaque, [1.0, 99.0]) if opaque.size else (None, None))
     bg = 1.0 if run.model.eval_background == "white" else 0.0

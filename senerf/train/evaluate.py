@@ -14,7 +14,7 @@ from .config import ModelConfig
 from .metrics import LPIPS_UNAVAILABLE, psnr, ssim
 from .rays import camera_rays, per_view_intrinsics, ray_dist_to_z_depth
 
-__all__ = ["render_views", "evaluate", "eval_images", "depth_to_color", "write_png"]
+__all__ = ["render_views", "evaluate", "eval_images", "depth_to_color", "to_uint8", "write_png"]
 
 
 def _background(name: str) -> tuple[float, float, float]:
@@ -119,13 +119,24 @@ def depth_to_color(z_depth: np.ndarray, acc: np.ndarray, lo: float | None = None
     return np.clip(np.round(rgb * 255.0), 0, 255).astype(np.uint8)
 
 
+def to_uint8(image: np.ndarray) -> np.ndarray:
+    """``(...)`` float image in [0, 1] (or uint8, returned as is) as uint8: ``round(255 x)`` in float64, clipped.
+
+    Example:
+        >>> to_uint8(np.array([-0.1, 0.5, 0.999, 2.0])).tolist()
+        [0, 128, 255, 255]
+    """
+    image = np.asarray(image)
+    if image.dtype == np.uint8:
+        return image
+    return np.clip(np.round(np.asarray(image, dtype=np.float64) * 255.0), 0, 255).astype(np.uint8)
+
+
 def write_png(path: str | Path, image: np.ndarray) -> None:
     """Write an (H, W, 3) float image in [0, 1] or uint8 image as an 8-bit PNG, atomically."""
     import imageio.v2 as imageio
 
-    image = np.asarray(image)
-    if image.dtype != np.uint8:
-        image = np.clip(np.round(np.asarray(image, dtype=np.float64) * 255.0), 0, 255).astype(np.uint8)
+    image = to_uint8(image)
     buf = io.BytesIO()
     imageio.imwrite(buf, image, format="png")
     atomic_write_bytes(path, buf.getvalue())
