@@ -233,7 +233,7 @@ def _prepare_out(out: Path, identity: dict, overwrite: bool) -> None:
 
     ``--overwrite`` only ever removes what senerf-fit wrote: a folder whose ``run.json`` is not one of ours
     (unreadable, or without our keys) is refused even then, and so is a folder of other files that holds
-    any name senerf-fit would write (``metrics.json``, ``summary.png``, ``checkpoints``, ``iter_*``).
+    any name senerf-fit would write (``metrics.json``, ``summary.png``, ``checkpoints``, ``render``, ``iter_*``).
     """
     from senerf.atomic import output_folder
     from senerf.train import atomic_write_text, differences_text, settings_differences
@@ -460,9 +460,9 @@ def main(argv: list[str] | None = None) -> int:
     # (measured on the 2-core machines: a K-Planes TV step 2.3 s -> 0.03 s); sleeping waits avoid that.
     # Only effective before torch is first imported; an explicit setting by the user wins.
     os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
-
     return run_command(PROG, lambda: _run(build_parser().parse_args(argv), [PROG, *argv]),
                        "rerun the same command to resume")
+
 
 if __name__ == "__main__":  # pragma: no cover
     sys.exit(main())
