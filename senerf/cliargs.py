@@ -7,7 +7,9 @@ print it as one ``<prog>: error: argument --flag: <problem>`` line and exit with
 from __future__ import annotations
 
 import argparse
+import signal
 import sys
+import threading
 import traceback
 import warnings
 
@@ -95,10 +97,16 @@ def run_command(prog: str, body, interrupted: str) -> int:
     """``body()``'s exit status, with every way out of a command mapped to one: 2 for bad input (one line
     ``<prog>: error: <message>``, no traceback), argparse's own status for ``--help`` / ``--version``, 130 when
     interrupted (``interrupted`` says what to do next), 1 for an internal error (with the traceback).  Warnings
-    raised meanwhile print as one ``<prog>: warning: <message>`` line each, without source lines."""
+    raised meanwhile print as one ``<prog>: warning: <message>`` line each, without source lines.  A SIGTERM
+    (what batch schedulers send) counts as an interrupt, so ``finally`` blocks run and temporary files go."""
     def one_line(message, category, filename, lineno, file=None, line=None) -> None:
         print(f"{prog}: warning: {' '.join(str(message).split())}", file=sys.stderr if file is None else file)
 
+    def terminated(signum, frame):
+        raise KeyboardInterrupt
+
+    in_main = threading.current_thread() is threading.main_thread()   # only there can a handler be set
+    previous = signal.signal(signal.SIGTERM, terminated) if in_main else None
     try:
         with warnings.catch_warnings():  # restores warnings.showwarning on exit
             warnings.showwarning = one_line
@@ -115,3 +123,6 @@ def run_command(prog: str, body, interrupted: str) -> int:
         traceback.print_exc()
         print(f"{prog}: internal error (please report it with the traceback above)", file=sys.stderr)
         return 1
+    finally:
+        if in_main:
+            signal.signal(signal.SIGTERM, previous)

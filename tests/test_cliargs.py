@@ -97,3 +97,24 @@ def test_run_command_prints_warnings_as_one_line_each(capsys):
     assert run_command("prog", body, "x") == 0
     assert capsys.readouterr().err == "prog: warning: a warning over two lines\n"
     assert warnings.showwarning.__name__ != "one_line"      # restored afterwards
+
+
+def test_run_command_treats_sigterm_as_an_interrupt_and_restores_the_handler(capsys):
+    import os
+    import signal
+
+    from senerf.cliargs import run_command
+
+    before = signal.getsignal(signal.SIGTERM)
+    cleaned = []
+
+    def body():
+        try:
+            os.kill(os.getpid(), signal.SIGTERM)
+            signal.pause() if hasattr(signal, "pause") else None   # pragma: no cover - the signal lands first
+        finally:
+            cleaned.append(True)                                    # a finally block runs (temp folders go)
+        return 0
+    assert run_command("prog", body, "rerun it") == 130
+    assert capsys.readouterr().err == "prog: interrupted (rerun it)\n" and cleaned == [True]
+    assert signal.getsignal(signal.SIGTERM) == before

@@ -111,6 +111,31 @@ def test_sigkill_mid_fit_then_rerun_resumes_and_matches_uninterrupted(scene24, t
         assert torch.equal(tensor, wb["field"][name]), name
 
 
+def test_sigterm_mid_fit_is_an_interrupt_with_its_message_and_a_resumable_folder(scene24, tmp_path):
+    """A batch scheduler's SIGTERM: before, the process died of the signal (no message, exit -15); now it is
+    handled as Ctrl-C is: exit 130, one line saying how to resume, and the checkpoint on disk resumes."""
+    out = tmp_path / "run"
+    ckpt = out / "checkpoints" / "iter_0_train.pt"
+    proc = subprocess.Popen([sys.executable, "-m", "senerf.cli", *_argv(scene24, out)], env=_env(),
+                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.monotonic() + 240
+        while not ckpt.exists():
+            assert proc.poll() is None, f"fit ended before its first checkpoint: {proc.stderr.read()!r}"
+            assert time.monotonic() < deadline, "no checkpoint within 240 s"
+            time.sleep(0.005)
+        proc.send_signal(signal.SIGTERM)
+        err = proc.communicate(timeout=60)[1]
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    assert proc.returncode == 130, err
+    assert err.strip().splitlines()[-1] == "senerf-fit: interrupted (rerun the same command to resume)"
+    assert load_checkpoint(ckpt)["step"] == CKPT_EVERY
+    assert not (out / "metrics.json").exists()
+
+
 def _selftrain_argv(scene: Path, out: Path) -> list[str]:
     return [str(scene), "--views", "0,1,2", "--out", str(out), "--iterations", "1", "--features", "daisy",
             "--steps", "40", "--batch-rays", "64", "--samples", "8", "--resolution", "8", "--no-occupancy",
