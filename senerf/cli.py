@@ -55,8 +55,8 @@ def build_parser() -> argparse.ArgumentParser:
                              "beside the ground truth), metrics.json, iter_K/test/ (test-view renders, K = 0 the "
                              "teacher), iter_K/pseudo/ (pseudo views, similarity maps, reliability masks), "
                              "run.json and checkpoints/. Run the same command again to resume. Exit status: 0 "
-                             "done, 2 bad input (one line naming the file and field), 130 interrupted (rerun to "
-                             "resume), 1 internal error.")
+                             "done, 2 bad input (one line naming the file and field), 130 interrupted (Ctrl-C or "
+                             "SIGTERM; rerun to resume), 1 internal error.")
     p.add_argument("scene", nargs="?", help="scene folder (NeRF Synthetic / instant-ngp / LLFF)")
     g = p.add_argument_group("views")
     g.add_argument("--views", type=argument_type(parse_views),

@@ -14,7 +14,7 @@ teacher (iteration 0) beside the rendered iteration along the same path.  Nothin
 rendered; the folder appears whole, by one rename.
 
 Exit status: 0 done, 2 bad input (one line ``senerf-render: error: ...`` naming the file or flag), 130
-interrupted, 1 internal error.
+interrupted (Ctrl-C or SIGTERM; nothing is written), 1 internal error.
 """
 
 from __future__ import annotations
