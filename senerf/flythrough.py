@@ -41,6 +41,8 @@ __all__ = ["FittedRun", "load_fitted_run", "with_iteration", "path_cameras", "re
 PROG = "senerf-render"
 #: The camera paths ``senerf-render`` draws.
 PATHS = ("orbit", "spiral", "test")
+#: Frames of an orbit or spiral when ``--frames`` is not given.
+FRAMES_DEFAULT = 60
 _MARKER = "path.json"
 
 
@@ -199,11 +201,12 @@ def _load_field(folder: Path, model, k: int, seed: int, steps: int, device: str)
     return field, occupancy
 
 
-def with_iteration(run: FittedRun, iteration: int, device: str = "cpu") -> FittedRun:
-    """``run`` with the field of another finished ``iteration`` (the scene is not read again)."""
+def with_iteration(run: FittedRun, iteration: int, device: str = "cpu", flag: str = "--iteration") -> FittedRun:
+    """``run`` with the field of another finished ``iteration`` (the scene is not read again); an unfinished
+    one is an :class:`InputError` naming ``flag``, the option that asked for it."""
     if iteration not in run.finished:
         raise InputError(f"iteration {iteration} is not finished in this run (finished: {list(run.finished)})",
-                         field="--iteration")
+                         field=flag)
     field, occupancy = _load_field(run.folder, run.model, iteration, run.seed, run.steps, device)
     return dataclasses.replace(run, field=field, occupancy=occupancy, iteration=iteration)
 
@@ -406,7 +409,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="orbit (default for object scenes), spiral (default for forward-facing scenes) or test "
                         "(the run's test views)")
     p.add_argument("--frames", type=int_flag("--frames", maximum=10000), default=None,
-                   help="frames of an orbit or spiral (default 60)")
+                   help=f"frames of an orbit or spiral (default {FRAMES_DEFAULT})")
     p.add_argument("--fps", type=float_flag("--fps", positive=True, maximum=50.0), default=20.0,
                    help="GIF frame rate, at most 50 (GIF delays are whole hundredths of a second; default 20)")
     p.add_argument("--iteration", type=int_flag("--iteration", allow_zero=True), default=None,
@@ -429,8 +432,6 @@ def _run(args, argv: list[str]) -> int:
     device = check_device(args.device)
     if args.elevation is not None and args.path not in (None, "orbit"):
         raise InputError("applies to --path orbit only", field="--elevation")
-    if not Path(args.run).is_dir():
-        raise InputError("not a folder", file=args.run)
     if args.out is not None:
         _check_out(args.out, args.overwrite)   # before loading anything
     run = load_fitted_run(args.run, args.iteration, device)
@@ -439,18 +440,17 @@ def _run(args, argv: list[str]) -> int:
         raise InputError("applies to --path orbit only", field="--elevation")
     if args.frames is not None and path == "test":
         raise InputError("the test path has one frame per test view; leave --frames out", field="--frames")
-    out = args.out if args.out is not None else run.folder / "render" / f"{path}_iter{run.iteration}"
-    _check_out(out, args.overwrite)
-    c2w, intrinsics = path_cameras(run, path, args.frames or 60, args.scale, args.elevation)
+    out = args.out
+    if out is None:   # a given --out was checked before loading
+        out = run.folder / "render" / f"{path}_iter{run.iteration}"
+        _check_out(out, args.overwrite)
+    c2w, intrinsics = path_cameras(run, path, args.frames or FRAMES_DEFAULT, args.scale, args.elevation)
     teacher = None
     if args.compare:   # before rendering: a missing teacher checkpoint is found now, not after the frames
         if run.iteration == 0:
             raise InputError("compares the teacher (iteration 0) with a self-training iteration; this one is 0",
                              field="--compare")
-        if 0 not in run.finished:
-            raise InputError(f"the run has no finished iteration 0 to compare with (finished: {list(run.finished)})",
-                             field="--compare")
-        teacher = with_iteration(run, 0, device)
+        teacher = with_iteration(run, 0, device, flag="--compare")
     _check_memory(intrinsics, renders=2 if args.compare else 1)
     shutil.rmtree(_temp_sibling(out))   # the folder can be written: found out before rendering, not after
     print(f"{PROG}: {run.scene.name}, iteration {run.iteration}{' and the teacher' if teacher else ''}, {path} "

@@ -498,6 +498,11 @@ def test_compare_puts_the_teacher_beside_the_rendered_iteration(runs, tmp_path, 
     assert main([str(runs.base), "--out", str(tmp_path / "z"), "--compare", *common]) == 2
     assert "--compare: compares the teacher (iteration 0) with a self-training iteration" in _error(capsys)
     assert not (tmp_path / "z").exists()
+    no_teacher = tmp_path / "no_teacher"     # a run whose metrics lost iteration 0: the flag that needs it is named
+    shutil.copytree(runs.st, no_teacher, ignore=shutil.ignore_patterns("render"))
+    _edit_json(no_teacher / "metrics.json", lambda m: m.update(iterations=m["iterations"][1:]))
+    assert main([str(no_teacher), "--compare", *common]) == 2
+    assert "--compare: iteration 0 is not finished in this run (finished: [1])" in _error(capsys)
 
 
 def test_side_by_side_places_both_stacks_and_checks_them():
