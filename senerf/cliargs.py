@@ -124,5 +124,5 @@ def run_command(prog: str, body, interrupted: str) -> int:
         print(f"{prog}: internal error (please report it with the traceback above)", file=sys.stderr)
         return 1
     finally:
-        if in_main:
+        if previous is not None:   # None: not set from Python (or not the main thread), nothing to restore
             signal.signal(signal.SIGTERM, previous)
