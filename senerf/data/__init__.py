@@ -7,6 +7,8 @@ Public API::
     fewshot_split(scene, protocol, views=None, n_views=None, seed=0) -> (train_idx, test_idx)
     load_blender, load_ngp, load_llff       the per-format loaders (load_llff takes bd_factor, recenter)
     detect_format(path) -> 'blender' | 'ngp' | 'llff'
+    Distortion, undistorted_intrinsics, undistortion_maps, undistort_image, distort_pixels
+                                            lens undistortion, applied by the JSON loaders (OPENCV, OPENCV_FISHEYE)
     EXTREME_VIEWS, INFONERF4_VIEWS, PROTOCOLS
 
 Every problem with user input raises :class:`senerf.errors.InputError` naming the file and the field.
@@ -19,6 +21,7 @@ from .fewshot import EXTREME_VIEWS, INFONERF4_VIEWS, PROTOCOLS, fewshot_split
 from .llff import load_llff, recenter_poses
 from .load import detect_format, load_scene, scene_root
 from .scene import Scene
+from .undistort import Distortion, distort_pixels, undistort_image, undistorted_intrinsics, undistortion_maps
 
 __all__ = [
     "Scene",
@@ -33,4 +36,9 @@ __all__ = [
     "EXTREME_VIEWS",
     "INFONERF4_VIEWS",
     "PROTOCOLS",
+    "Distortion",
+    "distort_pixels",
+    "undistorted_intrinsics",
+    "undistortion_maps",
+    "undistort_image",
 ]

@@ -30,6 +30,7 @@ __all__ = [
     "read_json",
     "get_field",
     "as_positive",
+    "as_finite",
     "as_pose",
     "check_rigid",
     "resolve_inside",
@@ -83,6 +84,16 @@ def as_positive(value, file: Path, field: str) -> float:
     v = float(value)
     if not math.isfinite(v) or v <= 0.0:
         raise InputError(f"must be positive and finite, got {value!r}", file=file, field=field)
+    return v
+
+
+def as_finite(value, file: Path, field: str) -> float:
+    """A finite float of either sign (distortion coefficients); ``InputError`` otherwise."""
+    if not _is_json_number(value):
+        raise InputError(f"expected a number, got {value!r}", file=file, field=field)
+    v = float(value)
+    if not math.isfinite(v):
+        raise InputError(f"must be finite, got {value!r}", file=file, field=field)
     return v
 
 
@@ -249,7 +260,8 @@ def resize_area(img: np.ndarray, size: tuple[int, int]) -> np.ndarray:
     return np.clip(small, 0.0, 1.0, out=small)
 
 
-def load_images(paths, fields, file_of, downscale: float = 1.0, size: tuple[int, int] | None = None):
+def load_images(paths, fields, file_of, downscale: float = 1.0, size: tuple[int, int] | None = None,
+                prepare=None):
     """Decode, size-check and downscale a list of images.
 
     Args:
@@ -258,6 +270,9 @@ def load_images(paths, fields, file_of, downscale: float = 1.0, size: tuple[int,
         file_of: the file (JSON / folder) naming each path, length n.
         downscale: divide both sides by this (>= 1), see :func:`target_size`; ignored when ``size`` is given.
         size: the output size ``(H', W')``, or ``None`` to derive it from ``downscale``.
+        prepare: ``None``, or ``prepare(k, img) -> img`` applied to image ``k`` as decoded (float32
+            ``(H, W, 3)`` or straight RGBA ``(H, W, 4)``, after the size check, before downscaling) and
+            returning the same shape: the loaders' lens undistortion.
 
     Returns:
         ``rgb (n, H', W', 3)`` float32, ``alpha (n, H', W')`` float32 or ``None``, and the decoded
@@ -287,6 +302,8 @@ def load_images(paths, fields, file_of, downscale: float = 1.0, size: tuple[int,
                 file=file,
                 field=field,
             )
+        if prepare is not None:
+            img = prepare(k, img)
         img = resize_area(img, out_size)
         rgb_all[k] = img[..., :3]
         if img.shape[2] == 4:

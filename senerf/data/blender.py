@@ -12,7 +12,14 @@
   skipped with a warning naming it.  Splits: nerfstudio's ``train_filenames`` / ``val_filenames`` /
   ``test_filenames`` lists are honoured when present (a frame listed in none is in no split); otherwise
   every frame is ``'train'`` and ``'val'``/``'test'`` are empty (choose test views with a protocol, see
-  :func:`senerf.data.fewshot_split`).  Distortion coefficients are ignored with a warning.
+  :func:`senerf.data.fewshot_split`).
+* **Lens distortion** (either format, top level or per frame): ``k1, k2, k3, p1, p2`` (OpenCV's radial and
+  tangential model: COLMAP's ``OPENCV``, ``RADIAL``, ``SIMPLE_RADIAL``), or ``k1 .. k4`` with
+  ``"camera_model": "OPENCV_FISHEYE"`` or ``"is_fisheye": true`` (instant-ngp).  Each distorted photo is
+  resampled at load time onto a pinhole camera at the same pose, with the photo's size and principal point
+  and a focal length chosen so that no pixel falls outside the photo (:mod:`senerf.data.undistort`); the
+  scene's intrinsics are that camera's.  ``k4`` (an ``r^8`` term) on a perspective camera, and the models
+  :data:`UNSUPPORTED_MODELS`, are refused.
 
 Convention:
     ``transform_matrix`` is camera-to-world in the OpenGL camera convention (x right, y up, looking
@@ -34,12 +41,17 @@ from ..errors import InputError
 from ..geometry import Intrinsics, opengl_to_opencv
 from . import _io
 from .scene import Scene
+from .undistort import Distortion, DistortionError, undistort_image, undistorted_intrinsics, undistortion_maps
 
-__all__ = ["load_blender", "load_ngp", "BLENDER_SPLITS"]
+__all__ = ["load_blender", "load_ngp", "BLENDER_SPLITS", "UNSUPPORTED_MODELS"]
 
 BLENDER_SPLITS = ("train", "val", "test")
 _DISTORTION_KEYS = ("k1", "k2", "k3", "k4", "p1", "p2")
-_UNSUPPORTED_MODELS = ("OPENCV_FISHEYE", "EQUIRECTANGULAR", "FISHEYE")
+#: ``camera_model`` values refused: cameras no pinhole image can stand for (nerfstudio's and COLMAP's names).
+UNSUPPORTED_MODELS = ("EQUIRECTANGULAR", "FISHEYE", "FISHEYE624", "OMNIDIRECTIONALSTEREO_L",
+                      "OMNIDIRECTIONALSTEREO_R", "VR180_L", "VR180_R", "SIMPLE_RADIAL_FISHEYE", "RADIAL_FISHEYE",
+                      "THIN_PRISM_FISHEYE", "FOV")
+_FISHEYE_MODELS = ("OPENCV_FISHEYE",)
 
 
 def _image_path(root: Path, frame: dict, file: Path, field: str) -> Path:
@@ -69,19 +81,53 @@ def _frame_entry(root: Path, meta: dict, frame: dict, i: int, file: Path) -> dic
     c2w = _io.as_pose(_io.get_field(frame, "transform_matrix", file, f"{prefix}.transform_matrix"),
                       file, f"{prefix}.transform_matrix")
     params = _camera_params(meta, frame, file, prefix)
-    distortion = [k for k in _DISTORTION_KEYS if frame.get(k, meta.get(k, 0.0)) not in (0, 0.0, None)]
+    distortion, distortion_field = _distortion(meta, frame, file, prefix)
     return dict(path=path, field=f"{prefix}.file_path", file=file, params=params, c2w_gl=c2w,
-                distortion=distortion, frame=prefix)
+                distortion=distortion, distortion_field=distortion_field, frame=prefix)
 
 
-def _warn_distortion(entries: list, file: Path) -> None:
-    """One warning for all frames of ``file`` whose distortion coefficients are ignored (not one per frame)."""
-    hit = [e for e in entries if e["distortion"]]
-    if hit:
-        keys = sorted({k for e in hit for k in e["distortion"]})
-        where = ", ".join(e["frame"] for e in hit[:3]) + (", ..." if len(hit) > 3 else "")
-        warnings.warn(f"{file}: distortion {keys} ignored in {len(hit)} of {len(entries)} frame(s) ({where}); "
-                      "the images are used as pinhole", stacklevel=3)
+def _frame_or_meta(meta: dict, frame: dict, key: str, prefix: str):
+    """``(value, field)`` of ``key``, the frame's value winning over the file's, or ``None`` when neither has it."""
+    if key in frame:
+        return frame[key], f"{prefix}.{key}"
+    if key in meta:
+        return meta[key], key
+    return None
+
+
+def _distortion(meta: dict, frame: dict, file: Path, prefix: str) -> tuple:
+    """The frame's lens distortion and the field to name in errors: ``(Distortion, field)`` or ``(None, None)``.
+
+    A perspective camera whose coefficients are all 0 (or absent) is a pinhole: ``(None, None)``.
+    """
+    model_field = _frame_or_meta(meta, frame, "camera_model", prefix)
+    model = model_field[0].upper() if model_field and isinstance(model_field[0], str) else None
+    if model in UNSUPPORTED_MODELS:
+        raise InputError(f"camera model {model_field[0]!r} is not supported (pinhole, OPENCV and OPENCV_FISHEYE "
+                         "are)", file=file, field=model_field[1])
+    flag = _frame_or_meta(meta, frame, "is_fisheye", prefix)
+    if flag is not None and not isinstance(flag[0], bool):
+        raise InputError(f"expected true or false, got {flag[0]!r}", file=file, field=flag[1])
+    values, fields = {}, {}
+    for key in _DISTORTION_KEYS:
+        found = _frame_or_meta(meta, frame, key, prefix)
+        if found is not None and found[0] is not None:  # null: as absent
+            values[key], fields[key] = _io.as_finite(found[0], file, found[1]), found[1]
+    nonzero = [k for k in _DISTORTION_KEYS if values.get(k, 0.0) != 0.0]
+    c = {k: values.get(k, 0.0) for k in _DISTORTION_KEYS}
+    if model in _FISHEYE_MODELS or (flag is not None and flag[0]):
+        for key in ("p1", "p2"):
+            if c[key] != 0.0:
+                raise InputError(f"a fisheye camera has no tangential term {key} (OPENCV_FISHEYE takes k1..k4)",
+                                 file=file, field=fields[key])
+        named = fields[nonzero[0]] if nonzero else (model_field[1] if model in _FISHEYE_MODELS else flag[1])
+        return Distortion("fisheye", (c["k1"], c["k2"], c["k3"], c["k4"])), named
+    if c["k4"] != 0.0:
+        raise InputError("k4 (an r^8 radial term) is not supported on a perspective camera (OpenCV's model takes "
+                         "k1, k2, k3, p1, p2)", file=file, field=fields["k4"])
+    if not nonzero:
+        return None, None
+    return Distortion("opencv", (c["k1"], c["k2"], c["p1"], c["p2"], c["k3"])), fields[nonzero[0]]
 
 
 def _camera_params(meta: dict, frame: dict, file: Path, prefix: str) -> dict:
@@ -101,9 +147,6 @@ def _camera_params(meta: dict, frame: dict, file: Path, prefix: str) -> dict:
             raise InputError(f"field of view must be below pi radians, got {src!r}", file=file, field=field)
     if "fl_x" not in out and "camera_angle_x" not in out:
         raise InputError("missing field (need fl_x or camera_angle_x)", file=file, field="camera_angle_x")
-    model = frame.get("camera_model", meta.get("camera_model"))
-    if isinstance(model, str) and model.upper() in _UNSUPPORTED_MODELS:
-        raise InputError(f"camera model {model!r} is not supported (pinhole only)", file=file, field="camera_model")
     return out
 
 
@@ -129,13 +172,47 @@ def _intrinsics(params: dict, height: int, width: int, file: Path) -> Intrinsics
     return Intrinsics(fx, fy, cx, cy, width, height)
 
 
+class _Undistorter:
+    """``prepare`` for :func:`_io.load_images`: undistorts each entry's photo and records its pinhole camera.
+
+    The sampling maps of the last camera are kept, so frames sharing one camera (the usual capture) compute
+    them once, and frames with their own cameras hold one pair of maps at a time.
+    """
+
+    def __init__(self, entries: list) -> None:
+        self.entries = entries
+        self.pinhole = {}  # entry index -> Intrinsics at the decoded size
+        self._key = self._maps = None
+
+    def __call__(self, k: int, img: np.ndarray) -> np.ndarray:
+        e = self.entries[k]
+        if e["distortion"] is None:
+            return img
+        k_photo = _intrinsics(e["params"], img.shape[0], img.shape[1], e["file"])
+        key = (k_photo, e["distortion"])
+        if key != self._key:
+            try:
+                k_pinhole = undistorted_intrinsics(k_photo, e["distortion"])
+                self._maps = (k_pinhole, undistortion_maps(k_photo, e["distortion"], k_pinhole))
+            except DistortionError as exc:
+                raise InputError(f"cannot undistort {e['path'].name}: {exc}", file=e["file"],
+                                 field=e["distortion_field"]) from None
+            self._key = key
+        self.pinhole[k] = self._maps[0]
+        return undistort_image(img, self._maps[1])
+
+
 def _build(root: Path, entries: list, downscale: float, splits: dict) -> Scene:
-    """Decode the images of ``entries`` (dicts: path, field, file, params, c2w_gl) and build the Scene."""
+    """Decode (and undistort) the images of ``entries`` (dicts: path, field, file, params, c2w_gl,
+    distortion, distortion_field) and build the Scene."""
+    undistorter = _Undistorter(entries)
     rgb, alpha, (h0, w0) = _io.load_images(
-        [e["path"] for e in entries], [e["field"] for e in entries], [e["file"] for e in entries], downscale
+        [e["path"] for e in entries], [e["field"] for e in entries], [e["file"] for e in entries], downscale,
+        prepare=undistorter,
     )
     h, w = rgb.shape[1:3]
-    intr = tuple(_intrinsics(e["params"], h0, w0, e["file"]).resized(w, h) for e in entries)
+    intr = tuple((undistorter.pinhole[k] if k in undistorter.pinhole else _intrinsics(e["params"], h0, w0, e["file"]))
+                 .resized(w, h) for k, e in enumerate(entries))
     c2w = opengl_to_opencv(np.stack([e["c2w_gl"] for e in entries]))
     return Scene(
         name=root.resolve().name,  # "." (a relative marker file or the current folder) has no name
@@ -182,7 +259,6 @@ def load_blender(root: Path, downscale: float = 1.0) -> Scene:
             if not entry["path"].is_file():
                 raise InputError(f"image not found: {entry['path']}", file=file, field=entry["field"])
             entries.append(entry)
-        _warn_distortion(entries[start:], file)
         splits[split] = np.arange(start, len(entries), dtype=np.int64)
     return _build(root, entries, downscale, splits)
 
@@ -235,7 +311,6 @@ def load_ngp(root: Path, downscale: float = 1.0) -> Scene:
             split_idx["train"].append(k)
     if not entries:
         raise InputError("no frame has an existing image", file=file, field="frames")
-    _warn_distortion(entries, file)
     if missing:
         warnings.warn(f"{file}: skipped {len(missing)} frame(s) whose image is missing: {', '.join(missing)}",
                       stacklevel=2)

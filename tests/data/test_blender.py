@@ -4,7 +4,6 @@ on tiny scenes written in tmp_path and on the real lego scene."""
 from __future__ import annotations
 
 import json
-import warnings
 import math
 
 import numpy as np
@@ -115,16 +114,6 @@ def test_ngp_nerfstudio_split_lists(tmp_path, writers):
     scene = load_scene(root)
     assert scene.splits["train"].tolist() == [0, 2]
     assert scene.splits["test"].tolist() == [1]
-
-
-def test_ngp_distortion_warns_once_per_file(tmp_path, writers):
-    # One line for the file, not one per frame (hundreds of lines on a real capture; so at ed16e9a).
-    root = writers.ngp(tmp_path / "n", meta_extra={"k1": 0.1})
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always")
-        load_scene(root)
-    texts = [str(w.message) for w in caught if "distortion" in str(w.message)]
-    assert len(texts) == 1 and "['k1'] ignored in 3 of 3 frame(s) (frames[0], frames[1], frames[2])" in texts[0]
 
 
 # --- the real lego scene ---------------------------------------------------------------------------------

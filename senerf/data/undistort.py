@@ -1,0 +1,244 @@
+"""Lens undistortion at the loaders' edge: distorted photos become pinhole images with their own intrinsics.
+
+Downstream of the loaders every camera is a pinhole (:class:`senerf.geometry.Intrinsics`), so a photo taken
+through a distorting lens is resampled once, when the scene is loaded, onto a pinhole camera at the same
+pose.  Two models are understood, those the instant-ngp / nerfstudio ``transforms.json`` writers emit:
+
+* ``'opencv'`` (COLMAP's ``OPENCV``, ``RADIAL``, ``SIMPLE_RADIAL``; instant-ngp's perspective cameras): with
+  normalised coordinates ``(x, y)`` and ``r^2 = x^2 + y^2``::
+
+      x_d = x (1 + k1 r^2 + k2 r^4 + k3 r^6) + 2 p1 x y + p2 (r^2 + 2 x^2)
+      y_d = y (1 + k1 r^2 + k2 r^4 + k3 r^6) + p1 (r^2 + 2 y^2) + 2 p2 x y
+
+* ``'fisheye'`` (``OPENCV_FISHEYE``, instant-ngp's ``is_fisheye``): ``theta = atan(r)``,
+  ``theta_d = theta (1 + k1 theta^2 + k2 theta^4 + k3 theta^6 + k4 theta^8)``, ``(x_d, y_d) = theta_d / r (x, y)``.
+
+The photo's pixel is then ``(fx x_d + cx, fy y_d + cy)``.  The pinhole camera keeps the photo's size,
+principal point and ``fx / fy`` ratio; its focal length is scaled by the smallest factor for which every one of
+its pixels samples inside the photo: the widest pinhole view without an invalid (black) pixel, as OpenCV's
+``alpha = 0``.  A distortion that folds the image over itself (not invertible over the field of view) is
+refused.
+
+Convention:
+    :class:`Intrinsics` put the centre of pixel ``i`` at ``i + 0.5``; OpenCV at ``i``.  Every ``cv2`` call
+    here gets ``cx - 0.5, cy - 0.5``, and the maps it returns are in OpenCV's pixel coordinates.  Images are
+    float32 ``(H, W, 3)`` or straight RGBA ``(H, W, 4)``; RGBA is resampled premultiplied (no dark fringes).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from ..geometry import Intrinsics
+
+__all__ = ["Distortion", "distort_pixels", "undistorted_intrinsics", "undistortion_maps", "undistort_image",
+           "DistortionError"]
+
+_N_COEFFS = {"opencv": 5, "fisheye": 4}
+# The pinhole focal factor is searched within [1/_SCALE_LIMIT, _SCALE_LIMIT] of the photo's.
+_SCALE_LIMIT = 64.0
+_BISECTIONS = 48
+# The focal search keeps every border sample inside the photo's extent exactly; the full float32 maps may then
+# fall this far (pixels) outside it, float32's rounding at 10^4 pixels being 1e-3.
+_MAP_TOL = 1e-2
+
+
+class DistortionError(ValueError):
+    """The distortion cannot be undone over the image (it folds it, or no pinhole view fits inside it)."""
+
+
+@dataclass(frozen=True)
+class Distortion:
+    """A lens distortion model and its coefficients.
+
+    Args:
+        model: ``'opencv'`` or ``'fisheye'`` (module docstring).
+        coeffs: OpenCV's order: ``(k1, k2, p1, p2, k3)`` for ``'opencv'``, ``(k1, k2, k3, k4)`` for
+            ``'fisheye'``; finite floats.
+
+    Raises:
+        ValueError: unknown model, wrong number of coefficients, or a non-finite one.
+    """
+
+    model: str
+    coeffs: tuple
+
+    def __post_init__(self) -> None:
+        if self.model not in _N_COEFFS:
+            raise ValueError(f"Distortion.model: expected 'opencv' or 'fisheye', got {self.model!r}")
+        coeffs = tuple(float(c) for c in self.coeffs)
+        if len(coeffs) != _N_COEFFS[self.model] or not all(math.isfinite(c) for c in coeffs):
+            raise ValueError(f"Distortion.coeffs: expected {_N_COEFFS[self.model]} finite numbers for "
+                             f"{self.model!r}, got {self.coeffs!r}")
+        object.__setattr__(self, "coeffs", coeffs)
+
+    @property
+    def is_identity(self) -> bool:
+        """True for the pinhole itself: the ``'opencv'`` model with every coefficient 0 (a fisheye never is)."""
+        return self.model == "opencv" and not any(self.coeffs)
+
+
+def _cv_K(k: Intrinsics) -> np.ndarray:
+    """``(3, 3)`` float64 camera matrix in OpenCV's pixel convention (pixel 0's centre at 0.0)."""
+    return np.array([[k.fx, 0.0, k.cx - 0.5], [0.0, k.fy, k.cy - 0.5], [0.0, 0.0, 1.0]])
+
+
+def _project(xy: np.ndarray, k_photo: Intrinsics, distortion: Distortion) -> np.ndarray:
+    """Normalised pinhole coordinates ``(n, 2)`` -> photo pixels ``(n, 2)``, OpenCV convention."""
+    pts = np.concatenate([xy, np.ones((len(xy), 1))], axis=1).reshape(1, -1, 3).astype(np.float64)
+    zero = np.zeros(3)
+    coeffs = np.asarray(distortion.coeffs, np.float64)
+    if distortion.model == "fisheye":
+        out, _ = cv2.fisheye.projectPoints(pts, zero, zero, _cv_K(k_photo), coeffs)
+    else:
+        out, _ = cv2.projectPoints(pts, zero, zero, _cv_K(k_photo), coeffs)
+    return out.reshape(-1, 2)
+
+
+def distort_pixels(uv: np.ndarray, k_pinhole: Intrinsics, k_photo: Intrinsics, distortion: Distortion) -> np.ndarray:
+    """Where pinhole pixels land in the distorted photo.
+
+    Args:
+        uv: ``(..., 2)`` pixel positions of the pinhole camera ``k_pinhole`` (:class:`Intrinsics` convention).
+        k_pinhole: the pinhole camera.
+        k_photo: the photo's intrinsics (its principal point and focal before distortion).
+        distortion: the photo's lens distortion.
+
+    Returns:
+        ``(..., 2)`` float64 positions in the photo, same convention.
+
+    Example:
+        >>> k = Intrinsics(100.0, 100.0, 50.0, 50.0, 100, 100)
+        >>> distort_pixels(np.array([50.0, 50.0]), k, k, Distortion("opencv", (-0.2, 0, 0, 0, 0))).tolist()
+        [50.0, 50.0]
+    """
+    uv = np.asarray(uv, np.float64)
+    if uv.shape[-1:] != (2,):
+        raise ValueError(f"distort_pixels: uv must have shape (..., 2), got {uv.shape}")
+    flat = uv.reshape(-1, 2)
+    xy = np.stack([(flat[:, 0] - k_pinhole.cx) / k_pinhole.fx, (flat[:, 1] - k_pinhole.cy) / k_pinhole.fy], axis=1)
+    return (_project(xy, k_photo, distortion) + 0.5).reshape(uv.shape)
+
+
+def _border_uv(width: int, height: int) -> np.ndarray:
+    """Pixel centres of the border rows and columns of a ``width x height`` image, ``(n, 2)``."""
+    us, vs = np.arange(width) + 0.5, np.arange(height) + 0.5
+    return np.concatenate([
+        np.stack([us, np.full(width, 0.5)], 1), np.stack([us, np.full(width, height - 0.5)], 1),
+        np.stack([np.full(height, 0.5), vs], 1), np.stack([np.full(height, width - 0.5), vs], 1),
+    ])
+
+
+def _pinhole(k_photo: Intrinsics, scale: float) -> Intrinsics:
+    return Intrinsics(k_photo.fx * scale, k_photo.fy * scale, k_photo.cx, k_photo.cy, k_photo.width, k_photo.height)
+
+
+def _inside(uv: np.ndarray, k: Intrinsics, tol: float) -> bool:
+    """True when every position of ``uv (n, 2)`` lies within ``[0, W] x [0, H]`` of ``k``, give or take ``tol``."""
+    return bool(np.all(np.isfinite(uv)) and uv[:, 0].min() >= -tol and uv[:, 1].min() >= -tol
+                and uv[:, 0].max() <= k.width + tol and uv[:, 1].max() <= k.height + tol)
+
+
+def undistorted_intrinsics(k_photo: Intrinsics, distortion: Distortion) -> Intrinsics:
+    """The pinhole camera a distorted photo is resampled onto (module docstring).
+
+    Args:
+        k_photo: the photo's intrinsics.
+        distortion: its lens distortion.
+
+    Returns:
+        ``k_photo`` itself for an identity distortion; otherwise the same size, principal point and
+        ``fx / fy``, with both focal lengths times the smallest factor whose border pixels all land inside the
+        photo (found by bisection to ~1e-14 relative).
+
+    Raises:
+        DistortionError: no factor within ``[1/64, 64]`` keeps the view inside the photo.
+    """
+    if distortion.is_identity:
+        return k_photo
+    border = _border_uv(k_photo.width, k_photo.height)
+
+    def fits(scale: float) -> bool:
+        return _inside(distort_pixels(border, _pinhole(k_photo, scale), k_photo, distortion), k_photo, 0.0)
+
+    lo = hi = 1.0
+    if fits(1.0):
+        while fits(lo):
+            lo *= 0.5
+            if lo < 1.0 / _SCALE_LIMIT:
+                raise DistortionError("the distortion keeps every pinhole view inside the photo down to 1/64 of "
+                                      "its focal length: it is not invertible over the image")
+    else:
+        while not fits(hi):
+            hi *= 2.0
+            if hi > _SCALE_LIMIT:
+                raise DistortionError("no pinhole view within 64 times the focal length fits inside the photo")
+    for _ in range(_BISECTIONS):
+        mid = 0.5 * (lo + hi)
+        lo, hi = (lo, mid) if fits(mid) else (mid, hi)
+    return _pinhole(k_photo, hi)
+
+
+def undistortion_maps(k_photo: Intrinsics, distortion: Distortion, k_pinhole: Intrinsics) -> tuple:
+    """Sampling maps for :func:`cv2.remap`: where each pinhole pixel lies in the photo.
+
+    Args:
+        k_photo: the photo's intrinsics.
+        distortion: its lens distortion.
+        k_pinhole: the target pinhole camera (usually :func:`undistorted_intrinsics`), same size.
+
+    Returns:
+        ``(map_x, map_y)``, each ``(H, W)`` float32 in OpenCV's pixel convention.
+
+    Raises:
+        DistortionError: a pinhole pixel samples outside the photo, or the mapping folds (its Jacobian
+            determinant is not positive everywhere: the distortion is not invertible over the image).
+    """
+    if k_pinhole.size != k_photo.size:
+        raise ValueError(f"undistortion_maps: sizes differ, {k_pinhole.size} and {k_photo.size}")
+    size = (k_photo.width, k_photo.height)
+    coeffs = np.asarray(distortion.coeffs, np.float64)
+    if distortion.model == "fisheye":
+        map_x, map_y = cv2.fisheye.initUndistortRectifyMap(_cv_K(k_photo), coeffs, np.eye(3), _cv_K(k_pinhole),
+                                                           size, cv2.CV_32FC1)
+    else:
+        map_x, map_y = cv2.initUndistortRectifyMap(_cv_K(k_photo), coeffs, None, _cv_K(k_pinhole), size,
+                                                   cv2.CV_32FC1)
+    uv = np.stack([map_x.ravel(), map_y.ravel()], 1).astype(np.float64) + 0.5
+    if not _inside(uv, k_photo, _MAP_TOL):
+        raise DistortionError("a pinhole pixel samples outside the photo")
+    if k_photo.width > 1 and k_photo.height > 1:
+        dxu, dyu = np.diff(map_x, axis=1)[:-1], np.diff(map_y, axis=1)[:-1]
+        dxv, dyv = np.diff(map_x, axis=0)[:, :-1], np.diff(map_y, axis=0)[:, :-1]
+        if not np.all(dxu * dyv - dxv * dyu > 0.0):
+            raise DistortionError("the distortion folds the image over itself (not invertible over the image)")
+    return map_x, map_y
+
+
+def undistort_image(img: np.ndarray, maps: tuple) -> np.ndarray:
+    """Resample a photo onto its pinhole camera (bilinear; the edge pixel repeats within half a pixel).
+
+    Args:
+        img: ``(H, W, 3)`` float32 colour or ``(H, W, 4)`` straight RGBA, values in ``[0, 1]``.
+        maps: ``(map_x, map_y)`` from :func:`undistortion_maps`, each ``(H', W')``.
+
+    Returns:
+        ``(H', W', C)`` float32 in ``[0, 1]``; RGBA stays straight (resampled premultiplied).
+    """
+    if img.ndim != 3 or img.shape[2] not in (3, 4):
+        raise ValueError(f"undistort_image: expected (H, W, 3) or (H, W, 4), got {img.shape}")
+    src = np.ascontiguousarray(img, np.float32)
+    if src.shape[2] == 4:
+        src = np.concatenate([src[..., :3] * src[..., 3:], src[..., 3:]], axis=2)
+    out = cv2.remap(src, maps[0], maps[1], interpolation=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    out = np.clip(out, 0.0, 1.0)
+    if out.shape[2] == 4:
+        a = out[..., 3:]
+        np.divide(out[..., :3], a, out=out[..., :3], where=a > 0.0)
+        out[..., :3] *= a > 0.0
+        np.clip(out, 0.0, 1.0, out=out)
+    return out

@@ -1,0 +1,286 @@
+"""Lens undistortion (senerf.data.undistort), against models typed here from their definitions.
+
+The golden values do not come from OpenCV (which the module calls): the Brown-Conrady and Kannala-Brandt
+formulas are written out below, their inverses solved by this file's own iterations, and the photos
+rendered from an analytic texture, so a resampled image can be compared with the texture itself.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from senerf.data import Distortion, distort_pixels, undistort_image, undistorted_intrinsics, undistortion_maps
+from senerf.data.undistort import DistortionError
+from senerf.geometry import Intrinsics
+
+K_PHOTO = Intrinsics(160.0, 150.0, 100.3, 79.6, 200, 160)
+
+CASES = {
+    "barrel": Distortion("opencv", (-0.25, 0.06, 0.0, 0.0, 0.0)),
+    "pincushion": Distortion("opencv", (0.12, 0.01, 0.0, 0.0, 0.0)),
+    "tangential": Distortion("opencv", (-0.1, 0.02, 0.003, -0.004, -0.005)),
+    "fisheye": Distortion("fisheye", (0.04, -0.01, 0.002, -0.0005)),
+    "fisheye-equidistant": Distortion("fisheye", (0.0, 0.0, 0.0, 0.0)),
+}
+
+
+def brown_conrady(x, y, c):
+    """OpenCV's radial-tangential model, coefficients ``(k1, k2, p1, p2, k3)``, on normalised coordinates."""
+    k1, k2, p1, p2, k3 = c
+    r2 = x * x + y * y
+    radial = 1.0 + k1 * r2 + k2 * r2 ** 2 + k3 * r2 ** 3
+    return (x * radial + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x),
+            y * radial + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y)
+
+
+def kannala_brandt(x, y, c):
+    """OpenCV's fisheye (equidistant) model, coefficients ``(k1, k2, k3, k4)``."""
+    r = np.hypot(x, y)
+    theta = np.arctan(r)
+    theta_d = theta * (1.0 + c[0] * theta ** 2 + c[1] * theta ** 4 + c[2] * theta ** 6 + c[3] * theta ** 8)
+    ratio = np.where(r > 1e-12, theta_d / np.maximum(r, 1e-300), 1.0)
+    return x * ratio, y * ratio
+
+
+def distort(x, y, d: Distortion):
+    return (kannala_brandt if d.model == "fisheye" else brown_conrady)(x, y, d.coeffs)
+
+
+def undistort_normalised(xd, yd, d: Distortion):
+    """Invert :func:`distort` by Newton's method with a numerical Jacobian (this file's own solver)."""
+    x, y = xd.copy(), yd.copy()
+    h = 1e-7
+    for _ in range(50):
+        fx, fy = distort(x, y, d)
+        rx, ry = fx - xd, fy - yd
+        ax, ay = distort(x + h, y, d)
+        bx, by = distort(x, y + h, d)
+        j11, j21, j12, j22 = (ax - fx) / h, (ay - fy) / h, (bx - fx) / h, (by - fy) / h
+        det = j11 * j22 - j12 * j21
+        x, y = x - (j22 * rx - j12 * ry) / det, y - (-j21 * rx + j11 * ry) / det
+    fx, fy = distort(x, y, d)
+    assert max(np.abs(fx - xd).max(), np.abs(fy - yd).max()) < 1e-12
+    return x, y
+
+
+def texture(x, y):
+    """A smooth colour image over normalised coordinates, ``(..., 3)``."""
+    return np.stack([0.5 + 0.4 * np.sin(2.0 * x + 0.3) * np.cos(1.5 * y),
+                     0.5 + 0.3 * np.cos(1.7 * x - 2.1 * y),
+                     0.4 + 0.3 * x * y], axis=-1)
+
+
+def pixel_grid(k: Intrinsics):
+    return np.meshgrid(np.arange(k.width) + 0.5, np.arange(k.height) + 0.5)
+
+
+def render_photo(k_photo: Intrinsics, d: Distortion) -> np.ndarray:
+    """The texture as a camera with lens ``d`` sees it (each pixel centre's undistorted ray, sampled)."""
+    u, v = pixel_grid(k_photo)
+    x, y = undistort_normalised((u - k_photo.cx) / k_photo.fx, (v - k_photo.cy) / k_photo.fy, d)
+    return texture(x, y).astype(np.float32)
+
+
+def test_distort_pixels_golden_by_hand():
+    k = Intrinsics(100.0, 100.0, 50.0, 50.0, 100, 100)
+    # k1 = -0.2 at normalised (0.5, 0): r^2 = 0.25, factor 1 - 0.05 = 0.95, x_d = 0.475 -> u = 50 + 47.5
+    out = distort_pixels(np.array([[100.0, 50.0]]), k, k, Distortion("opencv", (-0.2, 0.0, 0.0, 0.0, 0.0)))
+    np.testing.assert_allclose(out, [[97.5, 50.0]], atol=1e-9)
+    # p2 = 0.01 at normalised (0, 0.5): x_d = p2 (r^2 + 0) = 0.0025, y_d = 0.5 + 0 -> (50.25, 100)
+    out = distort_pixels(np.array([[50.0, 100.0]]), k, k, Distortion("opencv", (0.0, 0.0, 0.0, 0.01, 0.0)))
+    np.testing.assert_allclose(out, [[50.25, 100.0]], atol=1e-9)
+    # equidistant fisheye at normalised (1, 0): theta = pi/4, x_d = pi/4 -> u = 50 + 25 pi
+    out = distort_pixels(np.array([[150.0, 50.0]]), k, k, Distortion("fisheye", (0.0, 0.0, 0.0, 0.0)))
+    np.testing.assert_allclose(out, [[50.0 + 25.0 * math.pi, 50.0]], atol=1e-9)
+
+
+@pytest.mark.parametrize("name", sorted(CASES))
+def test_distort_pixels_matches_the_model_typed_here(name):
+    d = CASES[name]
+    k_pin = Intrinsics(120.0, 110.0, 90.0, 85.0, 200, 160)
+    uv = np.random.default_rng(0).uniform([0, 0], [200, 160], size=(4, 50, 2))
+    xd, yd = distort((uv[..., 0] - 90.0) / 120.0, (uv[..., 1] - 85.0) / 110.0, d)
+    expected = np.stack([K_PHOTO.fx * xd + K_PHOTO.cx, K_PHOTO.fy * yd + K_PHOTO.cy], -1)
+    np.testing.assert_allclose(distort_pixels(uv, k_pin, K_PHOTO, d), expected, atol=1e-8)
+
+
+@pytest.mark.parametrize("name", sorted(CASES))
+def test_pinhole_is_the_widest_view_inside_the_photo(name):
+    d = CASES[name]
+    k = undistorted_intrinsics(K_PHOTO, d)
+    assert (k.cx, k.cy, k.size) == (K_PHOTO.cx, K_PHOTO.cy, K_PHOTO.size)
+    assert k.fx / k.fy == pytest.approx(K_PHOTO.fx / K_PHOTO.fy, rel=1e-12)
+
+    def landed(kk):
+        u, v = pixel_grid(kk)
+        xd, yd = distort((u - kk.cx) / kk.fx, (v - kk.cy) / kk.fy, d)
+        return K_PHOTO.fx * xd + K_PHOTO.cx, K_PHOTO.fy * yd + K_PHOTO.cy
+
+    pu, pv = landed(k)
+    assert pu.min() >= -1e-6 and pv.min() >= -1e-6 and pu.max() <= 200 + 1e-6 and pv.max() <= 160 + 1e-6
+    wider = Intrinsics(k.fx * 0.999, k.fy * 0.999, k.cx, k.cy, k.width, k.height)
+    pu, pv = landed(wider)  # any wider view leaves the photo somewhere
+    assert pu.min() < 0 or pv.min() < 0 or pu.max() > 200 or pv.max() > 160
+
+
+def test_identity_distortion_keeps_the_camera():
+    assert undistorted_intrinsics(K_PHOTO, Distortion("opencv", (0, 0, 0, 0, 0))) is K_PHOTO
+    assert undistorted_intrinsics(K_PHOTO, Distortion("fisheye", (0, 0, 0, 0))) != K_PHOTO  # equidistant
+
+
+@pytest.mark.parametrize("name", sorted(CASES))
+def test_undistorted_photo_is_the_pinhole_view_of_the_texture(name):
+    d = CASES[name]
+    k_pin = undistorted_intrinsics(K_PHOTO, d)
+    out = undistort_image(render_photo(K_PHOTO, d), undistortion_maps(K_PHOTO, d, k_pin))
+    u, v = pixel_grid(k_pin)
+    expected = texture((u - k_pin.cx) / k_pin.fx, (v - k_pin.cy) / k_pin.fy)
+    err = np.abs(out - expected)
+    assert out.dtype == np.float32 and out.shape == (160, 200, 3)
+    assert err[2:-2, 2:-2].max() < 2e-4  # bilinear interpolation of a smooth texture
+    assert err.max() < 3e-3  # the edge pixels repeat within half a pixel: no black border anywhere
+    # without undistortion the photo is measurably not that view
+    assert np.abs(render_photo(K_PHOTO, d) - expected).max() > max(0.01, 20 * err[2:-2, 2:-2].max())
+
+
+def test_rgba_is_resampled_premultiplied():
+    # a black opaque disc; outside it, transparent pixels holding white: the white must not bleed in
+    d = CASES["barrel"]
+    u, v = pixel_grid(K_PHOTO)
+    disc = (u - 100.0) ** 2 + (v - 80.0) ** 2 < 50.0 ** 2
+    photo = np.zeros((160, 200, 4), np.float32)
+    photo[~disc, :3] = 1.0
+    photo[disc, 3] = 1.0
+    out = undistort_image(photo, undistortion_maps(K_PHOTO, d, undistorted_intrinsics(K_PHOTO, d)))
+    partly = (out[..., 3] > 0) & (out[..., 3] < 1)
+    assert partly.any() and np.abs(out[..., :3][out[..., 3] > 0]).max() < 1e-6
+
+
+def test_float32_maps_of_a_large_photo_stay_inside():
+    k = Intrinsics(3000.0, 3000.0, 2000.2, 1499.7, 4000, 3000)
+    d = Distortion("opencv", (-0.12, 0.03, 0.0005, 0.0007, 0.0))
+    map_x, map_y = undistortion_maps(k, d, undistorted_intrinsics(k, d))
+    assert map_x.min() >= -0.51 and map_x.max() <= 3999.51 and map_y.min() >= -0.51 and map_y.max() <= 2999.51
+
+
+def test_folding_distortion_is_refused():
+    # r_d = r (1 - 0.9 r^2) peaks at r_d = 0.365; the photo reaches 0.63 to the side: nothing maps there
+    d = Distortion("opencv", (-0.9, 0.0, 0.0, 0.0, 0.0))
+    with pytest.raises(DistortionError, match="not invertible"):
+        undistortion_maps(K_PHOTO, d, undistorted_intrinsics(K_PHOTO, d))
+
+
+def test_distortion_validates_its_fields():
+    with pytest.raises(ValueError, match="model"):
+        Distortion("brown", (0, 0, 0, 0, 0))
+    with pytest.raises(ValueError, match="5 finite numbers"):
+        Distortion("opencv", (0.1, 0.0, 0.0, 0.0))
+    with pytest.raises(ValueError, match="finite"):
+        Distortion("fisheye", (float("nan"), 0.0, 0.0, 0.0))
+    with pytest.raises(ValueError, match=r"\(\.\.\., 2\)"):
+        distort_pixels(np.zeros(3), K_PHOTO, K_PHOTO, CASES["barrel"])
+
+
+# --- through the JSON loaders ---------------------------------------------------------------------------
+
+def _photo_meta(d: Distortion | None = None) -> dict:
+    meta = {"fl_x": K_PHOTO.fx, "fl_y": K_PHOTO.fy, "cx": K_PHOTO.cx, "cy": K_PHOTO.cy, "w": 200, "h": 160}
+    if d is not None and d.model == "opencv":
+        meta.update(dict(zip(("k1", "k2", "p1", "p2", "k3"), d.coeffs)))
+    elif d is not None:
+        meta.update(dict(zip(("k1", "k2", "k3", "k4"), d.coeffs)), camera_model="OPENCV_FISHEYE")
+    return meta
+
+
+def _photo_writer(d: Distortion):
+    photo = np.round(render_photo(K_PHOTO, d) * 255.0).astype(np.uint8)
+    return lambda seed: photo
+
+
+@pytest.mark.parametrize("name", ["tangential", "fisheye"])
+def test_ngp_scene_is_undistorted_at_load(tmp_path, writers, name):
+    from senerf.data import load_scene
+    d = CASES[name]
+    scene = load_scene(writers.ngp(tmp_path / "n", meta_extra=_photo_meta(d), image=_photo_writer(d)))
+    k_pin = undistorted_intrinsics(K_PHOTO, d)
+    assert scene.intrinsics == k_pin and all(k == k_pin for k in scene.intrinsics_all)
+    u, v = pixel_grid(k_pin)
+    expected = texture((u - k_pin.cx) / k_pin.fx, (v - k_pin.cy) / k_pin.fy)
+    err = np.abs(scene.rgb - expected[None])
+    assert err[:, 2:-2, 2:-2].max() < 4e-3  # 8-bit photos: 1/510 rounding, then bilinear resampling
+    assert np.abs(render_photo(K_PHOTO, d) - expected).max() > 0.02  # what the loader did before: nothing
+
+
+def test_undistortion_happens_before_downscaling(tmp_path, writers):
+    from senerf.data import load_scene
+    from senerf.data._io import resize_area
+    d = CASES["barrel"]
+    root = writers.ngp(tmp_path / "n", meta_extra=_photo_meta(d), image=_photo_writer(d))
+    full, half = load_scene(root), load_scene(root, downscale=2)
+    assert half.intrinsics == undistorted_intrinsics(K_PHOTO, d).resized(100, 80)
+    np.testing.assert_array_equal(half.rgb[1], resize_area(full.rgb[1].copy(), (80, 100)))
+
+
+def test_frame_distortion_overrides_the_file_and_zero_is_a_pinhole(tmp_path, writers):
+    from senerf.data import load_scene
+    d = CASES["barrel"]
+    root = writers.ngp(tmp_path / "n", meta_extra=_photo_meta(d), image=_photo_writer(d))
+    meta = writers.read_json(root / "transforms.json")
+    meta["frames"][1].update(k1=0.0, k2=0.0)
+    meta["frames"][2].update(k1=-0.1)
+    writers.write_json(root / "transforms.json", meta)
+    scene = load_scene(root)
+    k0, k1, k2 = scene.intrinsics_all
+    assert k0 == undistorted_intrinsics(K_PHOTO, d) and k1 == K_PHOTO
+    assert k2 == undistorted_intrinsics(K_PHOTO, Distortion("opencv", (-0.1, 0.06, 0.0, 0.0, 0.0)))
+    assert k2.fx > k0.fx  # less barrel, less to crop
+
+
+def test_instant_ngp_fisheye_flag(tmp_path, writers):
+    from senerf.data import load_scene
+    d = CASES["fisheye-equidistant"]
+    meta = dict(_photo_meta(), k1=0, k2=0, k3=0, k4=0, p1=0, p2=0, is_fisheye=True)
+    scene = load_scene(writers.ngp(tmp_path / "n", meta_extra=meta, image=_photo_writer(d)))
+    assert scene.intrinsics == undistorted_intrinsics(K_PHOTO, d) != K_PHOTO
+    meta["is_fisheye"] = False  # instant-ngp writes the flag and zeros for every pinhole capture
+    scene = load_scene(writers.ngp(tmp_path / "p", meta_extra=meta, image=_photo_writer(d)))
+    assert scene.intrinsics == K_PHOTO
+
+
+@pytest.mark.parametrize("extra, frame_extra, field, words", [
+    ({"k1": "0.1"}, {}, "k1", "expected a number"),
+    ({"k2": float("inf")}, {}, "k2", "finite"),
+    ({}, {"p1": True}, r"frames\[0\]\.p1", "expected a number"),
+    ({"is_fisheye": "yes"}, {}, "is_fisheye", "true or false"),
+    ({"k4": 0.01}, {}, "k4", "r\\^8"),
+    ({"is_fisheye": True, "p2": 0.01}, {}, "p2", "no tangential term"),
+    ({"camera_model": "EQUIRECTANGULAR"}, {}, "camera_model", "not supported"),
+    ({}, {"camera_model": "fisheye624"}, r"frames\[0\]\.camera_model", "not supported"),
+    ({"k1": -0.9}, {}, "k1", "cannot undistort f_0.png: .*not invertible"),
+])
+def test_bad_distortion_fields_name_file_and_field(tmp_path, writers, extra, frame_extra, field, words):
+    from senerf.data import load_scene
+    from senerf.errors import InputError
+    root = writers.ngp(tmp_path / "n", meta_extra=dict(_photo_meta(), **extra), image=_photo_writer(CASES["barrel"]))
+    if frame_extra:
+        meta = writers.read_json(root / "transforms.json")
+        meta["frames"][0].update(frame_extra)
+        writers.write_json(root / "transforms.json", meta)
+    with pytest.raises(InputError, match=rf"transforms\.json: {field}: .*{words}") as info:
+        load_scene(root)
+    assert "\n" not in str(info.value)
+
+
+def test_blender_format_reads_distortion_too(tmp_path, writers):
+    from senerf.data import load_scene
+    root = writers.blender(tmp_path / "b", n_train=2, n_val=0, n_test=1)
+    for split in ("train", "test"):
+        meta = writers.read_json(root / f"transforms_{split}.json")
+        meta.update(k1=-0.05)
+        writers.write_json(root / f"transforms_{split}.json", meta)
+    scene = load_scene(root)
+    pinhole = load_scene(writers.blender(tmp_path / "p", n_train=2, n_val=0, n_test=1))
+    assert all(k.fx < p.fx for k, p in zip(scene.intrinsics_all, pinhole.intrinsics_all))
