@@ -77,21 +77,37 @@ def _is_json_number(value) -> bool:
     return isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, (bool, np.bool_))
 
 
+def _as_float(value, file: Path, field: str) -> float:
+    """``float(value)`` of a JSON number; a 400-digit integer is out of float's range: ``InputError``."""
+    try:
+        return float(value)
+    except OverflowError:
+        raise InputError(f"number out of range: {str(value)[:20]}...", file=file, field=field) from None
+
+
 def as_positive(value, file: Path, field: str) -> float:
     """A positive finite float (focal lengths, principal points, sizes, angles); ``InputError`` otherwise."""
     if not _is_json_number(value):  # "0.69" (a string) or true are mistakes in the file, not numbers
         raise InputError(f"expected a number, got {value!r}", file=file, field=field)
-    v = float(value)
+    v = _as_float(value, file, field)
     if not math.isfinite(v) or v <= 0.0:
         raise InputError(f"must be positive and finite, got {value!r}", file=file, field=field)
     return v
 
 
-def as_finite(value, file: Path, field: str) -> float:
-    """A finite float of either sign (distortion coefficients); ``InputError`` otherwise."""
+def as_finite(value, file: Path, field: str, allow_string: bool = False) -> float:
+    """A finite float of either sign (distortion coefficients); ``InputError`` otherwise.
+
+    ``allow_string``: also take a number written as a string (``"-0.05"``), as some converters write them.
+    """
+    if allow_string and isinstance(value, str):
+        try:
+            value = float(value.strip())
+        except ValueError:
+            raise InputError(f"expected a number, got {value!r}", file=file, field=field) from None
     if not _is_json_number(value):
         raise InputError(f"expected a number, got {value!r}", file=file, field=field)
-    v = float(value)
+    v = _as_float(value, file, field)
     if not math.isfinite(v):
         raise InputError(f"must be finite, got {value!r}", file=file, field=field)
     return v

@@ -18,8 +18,11 @@
   ``"camera_model": "OPENCV_FISHEYE"`` or ``"is_fisheye": true`` (instant-ngp).  Each distorted photo is
   resampled at load time onto a pinhole camera at the same pose, with the photo's size and principal point
   and a focal length chosen so that no pixel falls outside the photo (:mod:`senerf.data.undistort`); the
-  scene's intrinsics are that camera's.  ``k4`` (an ``r^8`` term) on a perspective camera, and the models
-  :data:`UNSUPPORTED_MODELS`, are refused.
+  scene's intrinsics are that camera's.  ``camera_model`` must be one of :data:`PERSPECTIVE_MODELS` or
+  :data:`FISHEYE_MODELS` (any other is refused, never read as a pinhole), and agree with ``is_fisheye``;
+  ``k4`` (an ``r^8`` term) on a perspective camera is refused, as nerfstudio does.  A coefficient written as a
+  string (``"-0.05"``, older nerfstudio converters) is read as the number.  A frame's value, ``null``
+  excepted, wins over the file's, key by key.
 
 Convention:
     ``transform_matrix`` is camera-to-world in the OpenGL camera convention (x right, y up, looking
@@ -33,6 +36,7 @@ from __future__ import annotations
 import math
 import os
 import warnings
+from collections import OrderedDict
 from pathlib import Path
 
 import numpy as np
@@ -43,15 +47,15 @@ from . import _io
 from .scene import Scene
 from .undistort import Distortion, DistortionError, undistort_image, undistorted_intrinsics, undistortion_maps
 
-__all__ = ["load_blender", "load_ngp", "BLENDER_SPLITS", "UNSUPPORTED_MODELS"]
+__all__ = ["load_blender", "load_ngp", "BLENDER_SPLITS", "PERSPECTIVE_MODELS", "FISHEYE_MODELS"]
 
 BLENDER_SPLITS = ("train", "val", "test")
 _DISTORTION_KEYS = ("k1", "k2", "k3", "k4", "p1", "p2")
-#: ``camera_model`` values refused: cameras no pinhole image can stand for (nerfstudio's and COLMAP's names).
-UNSUPPORTED_MODELS = ("EQUIRECTANGULAR", "FISHEYE", "FISHEYE624", "OMNIDIRECTIONALSTEREO_L",
-                      "OMNIDIRECTIONALSTEREO_R", "VR180_L", "VR180_R", "SIMPLE_RADIAL_FISHEYE", "RADIAL_FISHEYE",
-                      "THIN_PRISM_FISHEYE", "FOV")
-_FISHEYE_MODELS = ("OPENCV_FISHEYE",)
+#: ``camera_model`` values understood (COLMAP's names, as nerfstudio writes them; upper case, any case read).
+PERSPECTIVE_MODELS = ("SIMPLE_PINHOLE", "PINHOLE", "SIMPLE_RADIAL", "RADIAL", "OPENCV")
+FISHEYE_MODELS = ("OPENCV_FISHEYE", "SIMPLE_RADIAL_FISHEYE", "RADIAL_FISHEYE")
+# Undistortion maps kept while loading: frames of up to this many cameras interleaved reuse theirs.
+_MAPS_KEPT = 4
 
 
 def _image_path(root: Path, frame: dict, file: Path, field: str) -> Path:
@@ -87,12 +91,34 @@ def _frame_entry(root: Path, meta: dict, frame: dict, i: int, file: Path) -> dic
 
 
 def _frame_or_meta(meta: dict, frame: dict, key: str, prefix: str):
-    """``(value, field)`` of ``key``, the frame's value winning over the file's, or ``None`` when neither has it."""
-    if key in frame:
+    """``(value, field)`` of ``key``, the frame's value winning over the file's, or ``None`` when neither has it
+    (a ``null`` value counts as absent)."""
+    if frame.get(key) is not None:
         return frame[key], f"{prefix}.{key}"
-    if key in meta:
+    if meta.get(key) is not None:
         return meta[key], key
     return None
+
+
+def _camera_model(meta: dict, frame: dict, file: Path, prefix: str) -> tuple:
+    """``(is_fisheye, field)`` from ``camera_model`` and ``is_fisheye``: ``(None, None)`` when neither is given."""
+    found = _frame_or_meta(meta, frame, "camera_model", prefix)
+    fisheye = field = None
+    if found is not None:
+        value, field = found
+        name = value.strip().upper() if isinstance(value, str) else None
+        if name not in PERSPECTIVE_MODELS + FISHEYE_MODELS:
+            raise InputError(f"camera model {value!r} is not supported (supported: "
+                             f"{', '.join(PERSPECTIVE_MODELS + FISHEYE_MODELS)})", file=file, field=field)
+        fisheye = name in FISHEYE_MODELS
+    flag = _frame_or_meta(meta, frame, "is_fisheye", prefix)
+    if flag is not None:
+        if not isinstance(flag[0], bool):
+            raise InputError(f"expected true or false, got {flag[0]!r}", file=file, field=flag[1])
+        if fisheye is not None and flag[0] != fisheye:
+            raise InputError(f"is {str(flag[0]).lower()} but camera_model is {found[0]!r}", file=file, field=flag[1])
+        fisheye, field = flag[0], (field or flag[1])
+    return fisheye, field
 
 
 def _distortion(meta: dict, frame: dict, file: Path, prefix: str) -> tuple:
@@ -100,28 +126,22 @@ def _distortion(meta: dict, frame: dict, file: Path, prefix: str) -> tuple:
 
     A perspective camera whose coefficients are all 0 (or absent) is a pinhole: ``(None, None)``.
     """
-    model_field = _frame_or_meta(meta, frame, "camera_model", prefix)
-    model = model_field[0].upper() if model_field and isinstance(model_field[0], str) else None
-    if model in UNSUPPORTED_MODELS:
-        raise InputError(f"camera model {model_field[0]!r} is not supported (pinhole, OPENCV and OPENCV_FISHEYE "
-                         "are)", file=file, field=model_field[1])
-    flag = _frame_or_meta(meta, frame, "is_fisheye", prefix)
-    if flag is not None and not isinstance(flag[0], bool):
-        raise InputError(f"expected true or false, got {flag[0]!r}", file=file, field=flag[1])
+    fisheye, model_field = _camera_model(meta, frame, file, prefix)
     values, fields = {}, {}
     for key in _DISTORTION_KEYS:
         found = _frame_or_meta(meta, frame, key, prefix)
-        if found is not None and found[0] is not None:  # null: as absent
-            values[key], fields[key] = _io.as_finite(found[0], file, found[1]), found[1]
+        if found is not None:
+            values[key] = _io.as_finite(found[0], file, found[1], allow_string=True)
+            fields[key] = found[1]
     nonzero = [k for k in _DISTORTION_KEYS if values.get(k, 0.0) != 0.0]
     c = {k: values.get(k, 0.0) for k in _DISTORTION_KEYS}
-    if model in _FISHEYE_MODELS or (flag is not None and flag[0]):
+    if fisheye:
         for key in ("p1", "p2"):
             if c[key] != 0.0:
                 raise InputError(f"a fisheye camera has no tangential term {key} (OPENCV_FISHEYE takes k1..k4)",
                                  file=file, field=fields[key])
-        named = fields[nonzero[0]] if nonzero else (model_field[1] if model in _FISHEYE_MODELS else flag[1])
-        return Distortion("fisheye", (c["k1"], c["k2"], c["k3"], c["k4"])), named
+        return Distortion("fisheye", (c["k1"], c["k2"], c["k3"], c["k4"])), (fields[nonzero[0]] if nonzero
+                                                                             else model_field)
     if c["k4"] != 0.0:
         raise InputError("k4 (an r^8 radial term) is not supported on a perspective camera (OpenCV's model takes "
                          "k1, k2, k3, p1, p2)", file=file, field=fields["k4"])
@@ -175,31 +195,38 @@ def _intrinsics(params: dict, height: int, width: int, file: Path) -> Intrinsics
 class _Undistorter:
     """``prepare`` for :func:`_io.load_images`: undistorts each entry's photo and records its pinhole camera.
 
-    The sampling maps of the last camera are kept, so frames sharing one camera (the usual capture) compute
-    them once, and frames with their own cameras hold one pair of maps at a time.
+    The sampling maps of the last :data:`_MAPS_KEPT` cameras are kept, so frames sharing a camera (the usual
+    capture, or a few cameras interleaved) compute them once.
     """
 
     def __init__(self, entries: list) -> None:
         self.entries = entries
         self.pinhole = {}  # entry index -> Intrinsics at the decoded size
-        self._key = self._maps = None
+        self._maps = OrderedDict()  # (k_photo, distortion) -> (k_pinhole, maps)
+
+    def _camera(self, e: dict, k_photo: Intrinsics) -> tuple:
+        key = (k_photo, e["distortion"])
+        if key in self._maps:
+            self._maps.move_to_end(key)
+            return self._maps[key]
+        try:
+            k_pinhole = undistorted_intrinsics(k_photo, e["distortion"])
+            entry = (k_pinhole, undistortion_maps(k_photo, e["distortion"], k_pinhole))
+        except DistortionError as exc:
+            raise InputError(f"cannot undistort {e['path'].name}: {exc}", file=e["file"],
+                             field=e["distortion_field"]) from None
+        self._maps[key] = entry
+        while len(self._maps) > _MAPS_KEPT:
+            self._maps.popitem(last=False)
+        return entry
 
     def __call__(self, k: int, img: np.ndarray) -> np.ndarray:
         e = self.entries[k]
         if e["distortion"] is None:
             return img
-        k_photo = _intrinsics(e["params"], img.shape[0], img.shape[1], e["file"])
-        key = (k_photo, e["distortion"])
-        if key != self._key:
-            try:
-                k_pinhole = undistorted_intrinsics(k_photo, e["distortion"])
-                self._maps = (k_pinhole, undistortion_maps(k_photo, e["distortion"], k_pinhole))
-            except DistortionError as exc:
-                raise InputError(f"cannot undistort {e['path'].name}: {exc}", file=e["file"],
-                                 field=e["distortion_field"]) from None
-            self._key = key
-        self.pinhole[k] = self._maps[0]
-        return undistort_image(img, self._maps[1])
+        k_pinhole, maps = self._camera(e, _intrinsics(e["params"], img.shape[0], img.shape[1], e["file"]))
+        self.pinhole[k] = k_pinhole
+        return undistort_image(img, maps)
 
 
 def _build(root: Path, entries: list, downscale: float, splits: dict) -> Scene:

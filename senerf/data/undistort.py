@@ -15,9 +15,10 @@ pose.  Two models are understood, those the instant-ngp / nerfstudio ``transform
 
 The photo's pixel is then ``(fx x_d + cx, fy y_d + cy)``.  The pinhole camera keeps the photo's size,
 principal point and ``fx / fy`` ratio; its focal length is scaled by the smallest factor for which every one of
-its pixels samples inside the photo: the widest pinhole view without an invalid (black) pixel, as OpenCV's
-``alpha = 0``.  A distortion that folds the image over itself (not invertible over the field of view) is
-refused.
+its pixels samples within the photo's pixel centres, where the lens model does not fold back on itself: the
+widest pinhole view without an invalid (black or repeated) pixel, as OpenCV's ``alpha = 0``.  A photo whose
+outer part lies beyond the fold of its model (a strong negative ``k1`` on a wide lens) is cropped to the part
+inside it.
 
 Convention:
     :class:`Intrinsics` put the centre of pixel ``i`` at ``i + 0.5``; OpenCV at ``i``.  Every ``cv2`` call
@@ -39,11 +40,13 @@ __all__ = ["Distortion", "distort_pixels", "undistorted_intrinsics", "undistorti
            "DistortionError"]
 
 _N_COEFFS = {"opencv": 5, "fisheye": 4}
-# The pinhole focal factor is searched within [1/_SCALE_LIMIT, _SCALE_LIMIT] of the photo's.
+# The pinhole focal factor is searched within [1/_SCALE_LIMIT, _SCALE_LIMIT] of the photo's, and no wider than
+# a view whose farthest pixel is _MAX_OFF_AXIS_DEG off the optical axis.
 _SCALE_LIMIT = 64.0
-_BISECTIONS = 48
-# The focal search keeps every border sample inside the photo's extent exactly; the full float32 maps may then
-# fall this far (pixels) outside it, float32's rounding at 10^4 pixels being 1e-3.
+_MAX_OFF_AXIS_DEG = 80.0
+_BISECTIONS = 40
+# The focal search keeps every border sample within the photo's pixel centres exactly; the full float32 maps may
+# then fall this far (pixels) outside them, float32's rounding at 10^4 pixels being 1e-3.
 _MAP_TOL = 1e-2
 
 
@@ -124,12 +127,15 @@ def distort_pixels(uv: np.ndarray, k_pinhole: Intrinsics, k_photo: Intrinsics, d
     return (_project(xy, k_photo, distortion) + 0.5).reshape(uv.shape)
 
 
-def _border_uv(width: int, height: int) -> np.ndarray:
-    """Pixel centres of the border rows and columns of a ``width x height`` image, ``(n, 2)``."""
+def _probe_uv(width: int, height: int) -> np.ndarray:
+    """Pixel centres of the border rows and columns of a ``width x height`` image and of a 17 x 17 grid
+    inside it, ``(n, 2)``: where the pinhole view is tested."""
     us, vs = np.arange(width) + 0.5, np.arange(height) + 0.5
+    gu, gv = np.meshgrid(np.linspace(0.5, width - 0.5, 17), np.linspace(0.5, height - 0.5, 17))
     return np.concatenate([
         np.stack([us, np.full(width, 0.5)], 1), np.stack([us, np.full(width, height - 0.5)], 1),
         np.stack([np.full(height, 0.5), vs], 1), np.stack([np.full(height, width - 0.5), vs], 1),
+        np.stack([gu.ravel(), gv.ravel()], 1),
     ])
 
 
@@ -137,10 +143,26 @@ def _pinhole(k_photo: Intrinsics, scale: float) -> Intrinsics:
     return Intrinsics(k_photo.fx * scale, k_photo.fy * scale, k_photo.cx, k_photo.cy, k_photo.width, k_photo.height)
 
 
-def _inside(uv: np.ndarray, k: Intrinsics, tol: float) -> bool:
-    """True when every position of ``uv (n, 2)`` lies within ``[0, W] x [0, H]`` of ``k``, give or take ``tol``."""
-    return bool(np.all(np.isfinite(uv)) and uv[:, 0].min() >= -tol and uv[:, 1].min() >= -tol
-                and uv[:, 0].max() <= k.width + tol and uv[:, 1].max() <= k.height + tol)
+def _on_centres(u: np.ndarray, v: np.ndarray, k: Intrinsics, tol: float) -> bool:
+    """True when every ``(u, v)`` lies within the photo's outermost pixel centres, ``[0.5, W - 0.5] x
+    [0.5, H - 0.5]`` of ``k``, give or take ``tol``: bilinear sampling there never reaches past the photo."""
+    return bool(np.all(np.isfinite(u)) and np.all(np.isfinite(v))
+                and u.min() >= 0.5 - tol and v.min() >= 0.5 - tol
+                and u.max() <= k.width - 0.5 + tol and v.max() <= k.height - 0.5 + tol)
+
+
+def _view_fits(k_photo: Intrinsics, distortion: Distortion, k_pinhole: Intrinsics, probe: np.ndarray) -> bool:
+    """True when the ``probe`` pixels of ``k_pinhole`` land on the photo, where the lens does not fold (the
+    Jacobian determinant of pinhole pixel -> photo pixel, by central differences of 1e-3 pixel, is positive)."""
+    h = 1e-3
+    n = len(probe)
+    steps = ((0.0, 0.0), (h, 0.0), (-h, 0.0), (0.0, h), (0.0, -h))
+    uv = distort_pixels(np.concatenate([probe + step for step in steps]), k_pinhole, k_photo, distortion)
+    p0, pu, pv = uv[:n], uv[n:2 * n] - uv[2 * n:3 * n], uv[3 * n:4 * n] - uv[4 * n:]
+    if not _on_centres(p0[:, 0], p0[:, 1], k_photo, 1e-9):
+        return False
+    det = pu[:, 0] * pv[:, 1] - pv[:, 0] * pu[:, 1]
+    return bool(np.all(det > 0.0))
 
 
 def undistorted_intrinsics(k_photo: Intrinsics, distortion: Distortion) -> Intrinsics:
@@ -152,35 +174,60 @@ def undistorted_intrinsics(k_photo: Intrinsics, distortion: Distortion) -> Intri
 
     Returns:
         ``k_photo`` itself for an identity distortion; otherwise the same size, principal point and
-        ``fx / fy``, with both focal lengths times the smallest factor whose border pixels all land inside the
-        photo (found by bisection to ~1e-14 relative).
+        ``fx / fy``, with both focal lengths times the smallest factor for which every border pixel (and a
+        grid inside) lands within the photo's pixel centres where the lens does not fold, found by bisection
+        (~1e-12 relative).  A lens that sees wider still (a fisheye beyond 160 degrees) gets the view whose
+        corners are 80 degrees off axis: a pinhole image cannot hold a hemisphere.
 
     Raises:
-        DistortionError: no factor within ``[1/64, 64]`` keeps the view inside the photo.
+        DistortionError: the principal point lies outside the photo, or no factor up to 64 gives a view
+            that fits.
     """
     if distortion.is_identity:
         return k_photo
-    border = _border_uv(k_photo.width, k_photo.height)
+    if not (0.5 <= k_photo.cx <= k_photo.width - 0.5 and 0.5 <= k_photo.cy <= k_photo.height - 0.5):
+        raise DistortionError(f"the principal point ({k_photo.cx:g}, {k_photo.cy:g}) lies outside the photo's "
+                              "pixel centres; no pinhole view around it fits inside the photo")
+    probe = _probe_uv(k_photo.width, k_photo.height)
+    radius = np.hypot((probe[:, 0] - k_photo.cx) / k_photo.fx, (probe[:, 1] - k_photo.cy) / k_photo.fy).max()
+    widest = max(radius / math.tan(math.radians(_MAX_OFF_AXIS_DEG)), 1.0 / _SCALE_LIMIT)
 
     def fits(scale: float) -> bool:
-        return _inside(distort_pixels(border, _pinhole(k_photo, scale), k_photo, distortion), k_photo, 0.0)
+        return _view_fits(k_photo, distortion, _pinhole(k_photo, scale), probe)
 
-    lo = hi = 1.0
-    if fits(1.0):
-        while fits(lo):
-            lo *= 0.5
-            if lo < 1.0 / _SCALE_LIMIT:
-                raise DistortionError("the distortion keeps every pinhole view inside the photo down to 1/64 of "
-                                      "its focal length: it is not invertible over the image")
-    else:
-        while not fits(hi):
-            hi *= 2.0
-            if hi > _SCALE_LIMIT:
-                raise DistortionError("no pinhole view within 64 times the focal length fits inside the photo")
+    if fits(widest):
+        return _pinhole(k_photo, widest)
+    lo, hi = widest, 1.0
+    while not fits(hi):
+        lo, hi = hi, 2.0 * hi
+        if hi > _SCALE_LIMIT:
+            raise DistortionError("no pinhole view up to 64 times the focal length fits inside the photo "
+                                  "where the lens does not fold; check the coefficients")
     for _ in range(_BISECTIONS):
         mid = 0.5 * (lo + hi)
         lo, hi = (lo, mid) if fits(mid) else (mid, hi)
     return _pinhole(k_photo, hi)
+
+
+def _check_maps(map_x: np.ndarray, map_y: np.ndarray, k_photo: Intrinsics) -> None:
+    """``DistortionError`` unless the maps (OpenCV pixels) stay on the photo's pixel centres and do not fold."""
+    if not _on_centres(map_x + 0.5, map_y + 0.5, k_photo, _MAP_TOL):
+        raise DistortionError("a pinhole pixel samples outside the photo")
+    height, width = map_x.shape
+    if height == 1 or width == 1:  # one row or column: the one coordinate along it must increase
+        along = map_x.ravel() if height == 1 else map_y.ravel()
+        folded = width * height > 1 and not np.all(np.diff(along) > 0.0)
+    else:
+        folded = False
+        for r0 in range(0, height - 1, 512):  # rows in chunks: no full-size temporaries
+            xs, ys = map_x[r0:r0 + 513], map_y[r0:r0 + 513]
+            dxu, dyu = np.diff(xs, axis=1)[:-1], np.diff(ys, axis=1)[:-1]
+            dxv, dyv = np.diff(xs, axis=0)[:, :-1], np.diff(ys, axis=0)[:, :-1]
+            if not np.all(dxu * dyv - dxv * dyu > 0.0):
+                folded = True
+                break
+    if folded:
+        raise DistortionError("the distortion folds the image over itself (not invertible over the image)")
 
 
 def undistortion_maps(k_photo: Intrinsics, distortion: Distortion, k_pinhole: Intrinsics) -> tuple:
@@ -195,8 +242,8 @@ def undistortion_maps(k_photo: Intrinsics, distortion: Distortion, k_pinhole: In
         ``(map_x, map_y)``, each ``(H, W)`` float32 in OpenCV's pixel convention.
 
     Raises:
-        DistortionError: a pinhole pixel samples outside the photo, or the mapping folds (its Jacobian
-            determinant is not positive everywhere: the distortion is not invertible over the image).
+        DistortionError: a pinhole pixel samples outside the photo's pixel centres, or the mapping folds (its
+            Jacobian determinant is not positive everywhere: the distortion is not invertible over the view).
     """
     if k_pinhole.size != k_photo.size:
         raise ValueError(f"undistortion_maps: sizes differ, {k_pinhole.size} and {k_photo.size}")
@@ -208,19 +255,12 @@ def undistortion_maps(k_photo: Intrinsics, distortion: Distortion, k_pinhole: In
     else:
         map_x, map_y = cv2.initUndistortRectifyMap(_cv_K(k_photo), coeffs, None, _cv_K(k_pinhole), size,
                                                    cv2.CV_32FC1)
-    uv = np.stack([map_x.ravel(), map_y.ravel()], 1).astype(np.float64) + 0.5
-    if not _inside(uv, k_photo, _MAP_TOL):
-        raise DistortionError("a pinhole pixel samples outside the photo")
-    if k_photo.width > 1 and k_photo.height > 1:
-        dxu, dyu = np.diff(map_x, axis=1)[:-1], np.diff(map_y, axis=1)[:-1]
-        dxv, dyv = np.diff(map_x, axis=0)[:, :-1], np.diff(map_y, axis=0)[:, :-1]
-        if not np.all(dxu * dyv - dxv * dyu > 0.0):
-            raise DistortionError("the distortion folds the image over itself (not invertible over the image)")
+    _check_maps(map_x, map_y, k_photo)
     return map_x, map_y
 
 
 def undistort_image(img: np.ndarray, maps: tuple) -> np.ndarray:
-    """Resample a photo onto its pinhole camera (bilinear; the edge pixel repeats within half a pixel).
+    """Resample a photo onto its pinhole camera (bilinear).
 
     Args:
         img: ``(H, W, 3)`` float32 colour or ``(H, W, 4)`` straight RGBA, values in ``[0, 1]``.

@@ -119,11 +119,16 @@ def test_pinhole_is_the_widest_view_inside_the_photo(name):
         xd, yd = distort((u - kk.cx) / kk.fx, (v - kk.cy) / kk.fy, d)
         return K_PHOTO.fx * xd + K_PHOTO.cx, K_PHOTO.fy * yd + K_PHOTO.cy
 
+    def on_centres(pu, pv, tol):
+        return pu.min() >= 0.5 - tol and pv.min() >= 0.5 - tol and pu.max() <= 199.5 + tol and pv.max() <= 159.5 + tol
+
     pu, pv = landed(k)
-    assert pu.min() >= -1e-6 and pv.min() >= -1e-6 and pu.max() <= 200 + 1e-6 and pv.max() <= 160 + 1e-6
-    wider = Intrinsics(k.fx * 0.999, k.fy * 0.999, k.cx, k.cy, k.width, k.height)
-    pu, pv = landed(wider)  # any wider view leaves the photo somewhere
-    assert pu.min() < 0 or pv.min() < 0 or pu.max() > 200 or pv.max() > 160
+    assert on_centres(pu, pv, 1e-6)
+    assert not on_centres(*landed(_scaled(k, 0.999)), 0.0)  # any wider view leaves the photo somewhere
+
+
+def _scaled(k: Intrinsics, s: float) -> Intrinsics:
+    return Intrinsics(k.fx * s, k.fy * s, k.cx, k.cy, k.width, k.height)
 
 
 def test_identity_distortion_keeps_the_camera():
@@ -166,11 +171,52 @@ def test_float32_maps_of_a_large_photo_stay_inside():
     assert map_x.min() >= -0.51 and map_x.max() <= 3999.51 and map_y.min() >= -0.51 and map_y.max() <= 2999.51
 
 
-def test_folding_distortion_is_refused():
-    # r_d = r (1 - 0.9 r^2) peaks at r_d = 0.365; the photo reaches 0.63 to the side: nothing maps there
+def test_a_photo_beyond_the_fold_of_its_model_is_cropped_to_the_part_before_it():
+    # r_d = r (1 - 0.9 r^2) peaks at r = 1/sqrt(2.7) (r_d = 0.365), but the photo reaches r_d = 0.63 to the side:
+    # its outer part is not described by the model.  The view stops where the model folds.
     d = Distortion("opencv", (-0.9, 0.0, 0.0, 0.0, 0.0))
-    with pytest.raises(DistortionError, match="not invertible"):
-        undistortion_maps(K_PHOTO, d, undistorted_intrinsics(K_PHOTO, d))
+    k = undistorted_intrinsics(K_PHOTO, d)
+    u, v = pixel_grid(k)
+    r = np.hypot((u - k.cx) / k.fx, (v - k.cy) / k.fy)
+    assert r.max() <= 1.0 / math.sqrt(2.7) + 1e-6 and r.max() > 0.95 / math.sqrt(2.7)
+    undistortion_maps(K_PHOTO, d, k)  # valid: no fold, nothing outside
+    with pytest.raises(DistortionError, match="folds"):
+        undistortion_maps(K_PHOTO, d, _scaled(k, 0.9))  # wider: the fold is inside the view
+    with pytest.raises(DistortionError, match="outside the photo"):
+        undistortion_maps(K_PHOTO, CASES["barrel"], _scaled(undistorted_intrinsics(K_PHOTO, CASES["barrel"]), 0.9))
+
+
+def test_wide_lens_with_a_fold_past_its_corners_loads():
+    # a 1920x1080-style frame (at a tenth of the size) with k1 = -0.25: the model folds at r = 1.15, past the
+    # corners' r = 1.10 at the photo's own focal; a search that ignored the fold would refuse the camera
+    k = Intrinsics(100.0, 100.0, 96.0, 54.0, 192, 108)
+    d = Distortion("opencv", (-0.25, 0.0, 0.0, 0.0, 0.0))
+    pin = undistorted_intrinsics(k, d)
+    undistortion_maps(k, d, pin)
+    assert 0.9 < pin.fx / k.fx < 1.0
+
+
+def test_hemispherical_fisheye_gets_the_80_degree_view():
+    # an equidistant fisheye whose photo spans 100 degrees off axis: every pinhole view fits; the widest kept has
+    # its corners 80 degrees off axis
+    k = Intrinsics(30.0, 30.0, 50.0, 50.0, 100, 100)
+    pin = undistorted_intrinsics(k, Distortion("fisheye", (0.0, 0.0, 0.0, 0.0)))
+    corner = math.hypot(49.5, 49.5) / pin.fx
+    assert math.degrees(math.atan(corner)) == pytest.approx(80.0, abs=1e-9)
+
+
+@pytest.mark.parametrize("size", [(1, 1), (1, 7), (7, 1)])
+def test_one_pixel_wide_images(size):
+    k = Intrinsics(5.0, 5.0, size[1] / 2, size[0] / 2, size[1], size[0])
+    d = CASES["barrel"]
+    pin = undistorted_intrinsics(k, d)
+    out = undistort_image(np.full(size + (3,), 0.25, np.float32), undistortion_maps(k, d, pin))
+    assert out.shape == size + (3,) and np.allclose(out, 0.25)
+
+
+def test_principal_point_outside_the_photo_is_refused():
+    with pytest.raises(DistortionError, match="principal point"):
+        undistorted_intrinsics(Intrinsics(100.0, 100.0, 250.0, 80.0, 200, 160), CASES["barrel"])
 
 
 def test_distortion_validates_its_fields():
@@ -251,7 +297,8 @@ def test_instant_ngp_fisheye_flag(tmp_path, writers):
 
 
 @pytest.mark.parametrize("extra, frame_extra, field, words", [
-    ({"k1": "0.1"}, {}, "k1", "expected a number"),
+    ({"k1": "0.1x"}, {}, "k1", "expected a number"),
+    ({"k1": 10 ** 400}, {}, "k1", "out of range"),
     ({"k2": float("inf")}, {}, "k2", "finite"),
     ({}, {"p1": True}, r"frames\[0\]\.p1", "expected a number"),
     ({"is_fisheye": "yes"}, {}, "is_fisheye", "true or false"),
@@ -259,7 +306,11 @@ def test_instant_ngp_fisheye_flag(tmp_path, writers):
     ({"is_fisheye": True, "p2": 0.01}, {}, "p2", "no tangential term"),
     ({"camera_model": "EQUIRECTANGULAR"}, {}, "camera_model", "not supported"),
     ({}, {"camera_model": "fisheye624"}, r"frames\[0\]\.camera_model", "not supported"),
-    ({"k1": -0.9}, {}, "k1", "cannot undistort f_0.png: .*not invertible"),
+    ({"camera_model": 5}, {}, "camera_model", "not supported"),
+    ({"camera_model": "FULL_OPENCV"}, {}, "camera_model", "not supported"),
+    ({"camera_model": "OPENCV", "is_fisheye": True}, {}, "is_fisheye", "camera_model is 'OPENCV'"),
+    ({"camera_model": "OPENCV_FISHEYE", "is_fisheye": False}, {}, "is_fisheye", "camera_model is"),
+    ({"cx": 250.0, "k1": -0.1}, {}, "k1", "cannot undistort f_0.png: .*principal point"),
 ])
 def test_bad_distortion_fields_name_file_and_field(tmp_path, writers, extra, frame_extra, field, words):
     from senerf.data import load_scene
@@ -283,4 +334,58 @@ def test_blender_format_reads_distortion_too(tmp_path, writers):
         writers.write_json(root / f"transforms_{split}.json", meta)
     scene = load_scene(root)
     pinhole = load_scene(writers.blender(tmp_path / "p", n_train=2, n_val=0, n_test=1))
-    assert all(k.fx < p.fx for k, p in zip(scene.intrinsics_all, pinhole.intrinsics_all))
+    expected = undistorted_intrinsics(pinhole.intrinsics, Distortion("opencv", (-0.05, 0.0, 0.0, 0.0, 0.0)))
+    assert expected != pinhole.intrinsics and all(k == expected for k in scene.intrinsics_all)
+
+
+def test_coefficients_written_as_strings_are_read(tmp_path, writers):
+    # older nerfstudio converters (RealityCapture) wrote "k1": "-0.05"; nerfstudio reads them with float()
+    from senerf.data import load_scene
+    d = CASES["barrel"]
+    meta = dict(_photo_meta(d), k1=" -0.25", k2="0.06")
+    scene = load_scene(writers.ngp(tmp_path / "n", meta_extra=meta, image=_photo_writer(d)))
+    assert scene.intrinsics == undistorted_intrinsics(K_PHOTO, d)
+
+
+def test_frame_null_falls_back_to_the_file_and_frame_fisheye_needs_no_file_model(tmp_path, writers):
+    from senerf.data import load_scene
+    d, fe = CASES["barrel"], CASES["fisheye"]
+    root = writers.ngp(tmp_path / "n", meta_extra=_photo_meta(d), image=_photo_writer(d))
+    meta = writers.read_json(root / "transforms.json")
+    meta["frames"][0].update(k1=None, camera_model=None)
+    meta["frames"][2].update(dict(zip(("k1", "k2", "k3", "k4"), fe.coeffs)), camera_model="opencv_fisheye ",
+                             p1=0.0, p2=0.0)
+    writers.write_json(root / "transforms.json", meta)
+    k0, k1, k2 = load_scene(root).intrinsics_all
+    assert k0 == k1 == undistorted_intrinsics(K_PHOTO, d) and k2 == undistorted_intrinsics(K_PHOTO, fe)
+
+
+def test_interleaved_cameras_and_rgba_through_the_loader(tmp_path, writers):
+    # frames of two cameras, alternating (instant-ngp writes per-frame intrinsics for several cameras); RGBA
+    from senerf.data import load_scene
+    from senerf.data._io import read_rgba
+    d = CASES["tangential"]
+    rng = np.random.default_rng(3)
+    photos = [rng.uniform(0, 1, (160, 200, 4)).astype(np.float32) for _ in range(5)]
+    root = writers.ngp(tmp_path / "n", n=5, meta_extra=_photo_meta(d),
+                       image=lambda seed: np.round(photos[seed - 100] * 255).astype(np.uint8))
+    meta = writers.read_json(root / "transforms.json")
+    for i in (1, 3):
+        meta["frames"][i]["fl_x"] = 140.0
+    writers.write_json(root / "transforms.json", meta)
+    scene = load_scene(root)
+    for i in range(5):
+        k = Intrinsics(140.0 if i in (1, 3) else K_PHOTO.fx, K_PHOTO.fy, K_PHOTO.cx, K_PHOTO.cy, 200, 160)
+        pin = undistorted_intrinsics(k, d)
+        assert scene.intrinsics_all[i] == pin
+        expected = undistort_image(read_rgba(scene.image_paths[i], "f"), undistortion_maps(k, d, pin))
+        np.testing.assert_array_equal(scene.rgb[i], expected[..., :3])
+        np.testing.assert_array_equal(scene.alpha[i], expected[..., 3])
+
+
+def test_negligible_distortion_is_nearly_the_identity():
+    # the view is bounded by the photo's pixel centres, so a vanishing distortion leaves the camera (nearly)
+    # as it was instead of widening it by half a pixel at each edge
+    for k1 in (1e-300, -1e-12, 1e-12):
+        k = undistorted_intrinsics(K_PHOTO, Distortion("opencv", (k1, 0.0, 0.0, 0.0, 0.0)))
+        assert k.fx == pytest.approx(K_PHOTO.fx, rel=1e-9) and k.fy == pytest.approx(K_PHOTO.fy, rel=1e-9)
