@@ -23,9 +23,11 @@ import argparse
 import dataclasses
 import json
 import os
+import re
 import shutil
 import sys
 import tempfile
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -36,7 +38,7 @@ from senerf.cliargs import OneLineParser, check_device, float_flag, int_flag, ru
 from senerf.errors import InputError
 
 __all__ = ["FittedRun", "load_fitted_run", "with_iteration", "path_cameras", "render_frames", "side_by_side",
-           "write_frames", "main", "PATHS"]
+           "write_frames", "recover_interrupted", "main", "PATHS"]
 
 PROG = "senerf-render"
 #: The camera paths ``senerf-render`` draws.
@@ -44,6 +46,8 @@ PATHS = ("orbit", "spiral", "test")
 #: Frames of an orbit or spiral when ``--frames`` is not given.
 FRAMES_DEFAULT = 60
 _MARKER = "path.json"
+#: The file that marks a temporary folder of senerf-render (removed with it when a run was killed outright).
+_PARTIAL = ".senerf-render-partial"
 
 
 @dataclass(frozen=True, eq=False)
@@ -335,6 +339,7 @@ def write_frames(out: Path, frames: dict, record: dict, fps: float, overwrite: b
         for name, stack in gifs.items():
             iio.imwrite(tmp / f"{name}.gif", stack, extension=".gif", duration=duration, loop=0)
         (tmp / _MARKER).write_text(json.dumps(record, indent=1))
+        (tmp / _PARTIAL).unlink()   # from here on path.json marks it (recover_interrupted)
         os.chmod(tmp, 0o755)
         if out.exists():
             old = out.with_name(f".{out.name}.old-{os.getpid()}")
@@ -352,12 +357,60 @@ def write_frames(out: Path, frames: dict, record: dict, fps: float, overwrite: b
 
 
 def _temp_sibling(out: Path) -> Path:
-    """A new hidden folder beside ``out`` (``out``'s parents created); :class:`InputError` if impossible."""
+    """A new hidden folder ``.NAME.PID.xxxxxxxx`` beside ``out`` (``out``'s parents created), holding
+    :data:`_PARTIAL` so that :func:`recover_interrupted` knows it; :class:`InputError` if impossible."""
     try:
         out.parent.mkdir(parents=True, exist_ok=True)
-        return Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=out.parent))
+        tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.{os.getpid()}.", dir=out.parent))
+        (tmp / _PARTIAL).touch()
+        return tmp
     except OSError as exc:
         raise InputError(f"cannot write there ({exc.strerror or exc}); choose another --out", file=out) from None
+
+
+def _process_gone(pid: int) -> bool:
+    """True when no process ``pid`` exists (one we may not signal exists)."""
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return True
+    except OSError:
+        return False
+    return False
+
+
+def recover_interrupted(out: Path) -> list[str]:
+    """Tidy what a senerf-render killed outright (SIGKILL, power loss) left beside ``out``; returns what it did.
+
+    * ``.NAME.old-PID``, the earlier output moved aside for ``--overwrite``: renamed back to ``out`` when the
+      kill came before the new output took its place, removed when it came after (``out`` is then whole).
+    * ``.NAME.PID.xxxxxxxx``, a temporary folder holding :data:`_PARTIAL` (or, once complete, our
+      ``path.json``): removed.
+
+    Only folders of processes that no longer exist are touched, and only those that senerf-render marked.
+    """
+    done = []
+    parent = out.parent
+    if not parent.is_dir():
+        return done
+    old_name = re.compile(rf"\.{re.escape(out.name)}\.old-(\d+)")
+    tmp_name = re.compile(rf"\.{re.escape(out.name)}\.(\d+)\.[A-Za-z0-9_]{{8}}")
+    for entry in sorted(parent.iterdir()):
+        old, tmp = old_name.fullmatch(entry.name), tmp_name.fullmatch(entry.name)
+        match = old or tmp
+        if match is None or not entry.is_dir() or entry.is_symlink() or not _process_gone(int(match.group(1))):
+            continue
+        if old and _is_ours(entry):
+            if out.exists():
+                shutil.rmtree(entry, ignore_errors=True)
+                done.append(f"removed {entry.name}, the earlier output an interrupted {PROG} had replaced")
+            else:
+                entry.rename(out)
+                done.append(f"restored {out}, the earlier output an interrupted {PROG} had moved aside")
+        elif tmp and ((entry / _PARTIAL).is_file() or _is_ours(entry)):
+            shutil.rmtree(entry, ignore_errors=True)
+            done.append(f"removed {entry.name}, a partial folder an interrupted {PROG} left")
+    return done
 
 
 def _check_memory(intrinsics, renders: int = 1) -> None:
@@ -378,21 +431,29 @@ def _check_memory(intrinsics, renders: int = 1) -> None:
                          field="--frames")
 
 
+def _is_ours(folder: Path) -> bool:
+    """True when ``folder`` holds a ``path.json`` written by senerf-render."""
+    try:
+        return json.loads((folder / _MARKER).read_text()).get("senerf_render") is not None
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError, AttributeError):
+        return False
+
+
 def _check_out(out: Path, overwrite: bool) -> None:
     from senerf.atomic import output_folder
 
     output_folder(out, "--out")
+    try:
+        for line in recover_interrupted(out):
+            warnings.warn(line, stacklevel=2)
+    except OSError:   # an unreadable parent: the write below reports it
+        pass
     if not out.exists():
         return
     if not overwrite:
         raise InputError("exists; use --overwrite (replaces an earlier senerf-render output) or another --out",
                          file=out)
-    marker = out / _MARKER
-    try:
-        ours = json.loads(marker.read_text()).get("senerf_render") is not None
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError, AttributeError):
-        ours = False
-    if not ours:
+    if not _is_ours(out):
         raise InputError(f"is not a senerf-render output (no {_MARKER} of ours); --overwrite never deletes files "
                          f"it did not make; choose another --out", file=out)
 

@@ -543,3 +543,48 @@ def test_the_memory_check_counts_both_renders_of_compare(monkeypatch):
     _check_memory([k] * 12, renders=2)                   # 768 MiB < 819.2 MiB
     with pytest.raises(InputError, match=r"13 frames at 1024x1024 twice \(--compare\) need about 0\.8 GiB"):
         _check_memory([k] * 13, renders=2)               # 832 MiB
+
+
+def _dead_pid() -> int:
+    import subprocess
+    import sys
+
+    proc = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True, text=True,
+                          check=True)
+    return int(proc.stdout)
+
+
+def test_what_a_killed_render_left_is_tidied_and_the_earlier_output_restored(tmp_path):
+    # SIGKILL cannot be caught: the next senerf-render for the same --out tidies what the dead one left
+    import os
+
+    from senerf.flythrough import _PARTIAL, _check_out, write_frames
+
+    rgb = np.zeros((2, 4, 4, 3), np.uint8)
+    out = write_frames(tmp_path / "orbit_iter1", dict(rgb=rgb, depth=rgb), {"senerf_render": "x"}, fps=10.0)
+    assert not (out / _PARTIAL).exists()
+    dead, alive = _dead_pid(), os.getpid()
+    # killed between its two renames: the earlier output moved aside, the new one not yet in place
+    out.rename(tmp_path / f".orbit_iter1.old-{dead}")
+    partial = tmp_path / f".orbit_iter1.{dead}.abc_1234"
+    partial.mkdir()
+    (partial / _PARTIAL).touch()
+    live = tmp_path / f".orbit_iter1.{alive}.abc_1234"   # a render still running: left alone
+    live.mkdir()
+    (live / _PARTIAL).touch()
+    foreign = tmp_path / f".orbit_iter1.{dead}.userdata"  # no marker: not ours, left alone
+    foreign.mkdir()
+    with pytest.warns(UserWarning) as caught:
+        _check_out(out, overwrite=True)
+    texts = sorted(str(w.message) for w in caught)
+    assert len(texts) == 2 and "restored" in texts[1] and "partial folder" in texts[0]
+    assert (out / "path.json").is_file() and not partial.exists() and live.exists() and foreign.exists()
+    # killed after the new output took its place: the old copy is only removed
+    shutil.copytree(out, tmp_path / f".orbit_iter1.old-{dead}")
+    with pytest.warns(UserWarning, match="removed .orbit_iter1.old-"):
+        _check_out(out, overwrite=True)
+    assert out.is_dir() and not (tmp_path / f".orbit_iter1.old-{dead}").exists()
+    # an old copy that is not a senerf-render output is never touched
+    (tmp_path / f".orbit_iter1.old-{dead}").mkdir()
+    _check_out(out, overwrite=True)
+    assert (tmp_path / f".orbit_iter1.old-{dead}").exists()
