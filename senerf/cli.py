@@ -63,7 +63,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="training view indices, e.g. 0,1,51 (into the train split)")
     g.add_argument("--n-views", type=int_flag("--n-views"), help="number of views (llff, random8)")
     g.add_argument("--protocol", choices=_CLI_PROTOCOLS,
-                   help="few-shot protocol (default: 'views' with --views, else extreme / llff by scene kind)")
+                   help="few-shot protocol (default: 'views' with --views, else llff for forward-facing and COLMAP scenes, extreme for the others)")
     g.add_argument("--downscale", type=float_flag("--downscale", 1.0),
                    help="image downscale factor (default 1; LLFF: 8, relative to full resolution)")
     t = p.add_argument_group("training")
@@ -348,7 +348,7 @@ def _run(args, argv) -> int:
         raise InputError(f"the images are {scene.size[1]}x{scene.size[0]} at downscale {downscale:g}; the "
                          f"evaluation (SSIM) needs at least {SSIM_MIN_SIDE}x{SSIM_MIN_SIDE}", field="--downscale")
     protocol = args.protocol or ("views" if args.views is not None else
-                                 ("llff" if scene.kind == "forward_facing" else "extreme"))
+                                 ("llff" if scene.kind == "forward_facing" or fmt == "colmap" else "extreme"))
     train_idx, test_idx = fewshot_split(scene, protocol, views=args.views, n_views=args.n_views, seed=args.seed)
     print(f"{PROG}: scene {scene.name} ({fmt}, {scene.size[1]}x{scene.size[0]}), protocol {protocol}: "
           f"{len(train_idx)} training views {list(map(int, train_idx))[:12]}{' ...' if len(train_idx) > 12 else ''}, "

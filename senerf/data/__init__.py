@@ -5,8 +5,9 @@ Public API::
     Scene                                   frozen dataclass (images, OpenCV c2w, intrinsics, splits, bounds)
     load_scene(path, downscale=1, background=None) -> Scene      auto-detects Blender / ngp / LLFF
     fewshot_split(scene, protocol, views=None, n_views=None, seed=0) -> (train_idx, test_idx)
-    load_blender, load_ngp, load_llff       the per-format loaders (load_llff takes bd_factor, recenter)
-    detect_format(path) -> 'blender' | 'ngp' | 'llff'
+    load_blender, load_ngp, load_llff, load_colmap   the per-format loaders (LLFF and COLMAP take bd_factor,
+                                            recenter)
+    detect_format(path) -> 'blender' | 'ngp' | 'llff' | 'colmap'
     Distortion, undistorted_intrinsics, undistortion_maps, undistort_image, distort_pixels
                                             lens undistortion, applied by the JSON loaders (OPENCV, OPENCV_FISHEYE)
     EXTREME_VIEWS, INFONERF4_VIEWS, PROTOCOLS
@@ -17,6 +18,7 @@ See :mod:`senerf.data.load` (detection, downscaling), :mod:`senerf.data.blender`
 """
 
 from .blender import load_blender, load_ngp
+from .colmap import load_colmap
 from .fewshot import EXTREME_VIEWS, INFONERF4_VIEWS, PROTOCOLS, fewshot_split
 from .llff import load_llff, recenter_poses
 from .load import detect_format, load_scene, scene_root
@@ -31,6 +33,7 @@ __all__ = [
     "load_blender",
     "load_ngp",
     "load_llff",
+    "load_colmap",
     "recenter_poses",
     "fewshot_split",
     "EXTREME_VIEWS",

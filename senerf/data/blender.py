@@ -36,7 +36,6 @@ from __future__ import annotations
 import math
 import os
 import warnings
-from collections import OrderedDict
 from pathlib import Path
 
 import numpy as np
@@ -45,7 +44,7 @@ from ..errors import InputError
 from ..geometry import Intrinsics, opengl_to_opencv
 from . import _io
 from .scene import Scene
-from .undistort import Distortion, DistortionError, undistort_image, undistorted_intrinsics, undistortion_maps
+from .undistort import Distortion, Undistorter
 
 __all__ = ["load_blender", "load_ngp", "BLENDER_SPLITS", "PERSPECTIVE_MODELS", "FISHEYE_MODELS"]
 
@@ -54,9 +53,6 @@ _DISTORTION_KEYS = ("k1", "k2", "k3", "k4", "p1", "p2")
 #: ``camera_model`` values understood (COLMAP's names, as nerfstudio writes them; upper case, any case read).
 PERSPECTIVE_MODELS = ("SIMPLE_PINHOLE", "PINHOLE", "SIMPLE_RADIAL", "RADIAL", "OPENCV")
 FISHEYE_MODELS = ("OPENCV_FISHEYE", "SIMPLE_RADIAL_FISHEYE", "RADIAL_FISHEYE")
-# Undistortion maps kept while loading: frames of up to this many cameras interleaved reuse theirs.
-_MAPS_KEPT = 4
-
 
 def _image_path(root: Path, frame: dict, file: Path, field: str) -> Path:
     rel = _io.get_field(frame, "file_path", file, field)
@@ -192,47 +188,10 @@ def _intrinsics(params: dict, height: int, width: int, file: Path) -> Intrinsics
     return Intrinsics(fx, fy, cx, cy, width, height)
 
 
-class _Undistorter:
-    """``prepare`` for :func:`_io.load_images`: undistorts each entry's photo and records its pinhole camera.
-
-    The sampling maps of the last :data:`_MAPS_KEPT` cameras are kept, so frames sharing a camera (the usual
-    capture, or a few cameras interleaved) compute them once.
-    """
-
-    def __init__(self, entries: list) -> None:
-        self.entries = entries
-        self.pinhole = {}  # entry index -> Intrinsics at the decoded size
-        self._maps = OrderedDict()  # (k_photo, distortion) -> (k_pinhole, maps)
-
-    def _camera(self, e: dict, k_photo: Intrinsics) -> tuple:
-        key = (k_photo, e["distortion"])
-        if key in self._maps:
-            self._maps.move_to_end(key)
-            return self._maps[key]
-        try:
-            k_pinhole = undistorted_intrinsics(k_photo, e["distortion"])
-            entry = (k_pinhole, undistortion_maps(k_photo, e["distortion"], k_pinhole))
-        except DistortionError as exc:
-            raise InputError(f"cannot undistort {e['path'].name}: {exc}", file=e["file"],
-                             field=e["distortion_field"]) from None
-        self._maps[key] = entry
-        while len(self._maps) > _MAPS_KEPT:
-            self._maps.popitem(last=False)
-        return entry
-
-    def __call__(self, k: int, img: np.ndarray) -> np.ndarray:
-        e = self.entries[k]
-        if e["distortion"] is None:
-            return img
-        k_pinhole, maps = self._camera(e, _intrinsics(e["params"], img.shape[0], img.shape[1], e["file"]))
-        self.pinhole[k] = k_pinhole
-        return undistort_image(img, maps)
-
-
 def _build(root: Path, entries: list, downscale: float, splits: dict) -> Scene:
     """Decode (and undistort) the images of ``entries`` (dicts: path, field, file, params, c2w_gl,
     distortion, distortion_field) and build the Scene."""
-    undistorter = _Undistorter(entries)
+    undistorter = Undistorter(entries, lambda e, h, w: _intrinsics(e["params"], h, w, e["file"]))
     rgb, alpha, (h0, w0) = _io.load_images(
         [e["path"] for e in entries], [e["field"] for e in entries], [e["file"] for e in entries], downscale,
         prepare=undistorter,

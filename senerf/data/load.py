@@ -1,8 +1,9 @@
-"""``load_scene``: detect a scene folder's format and load it (NeRF Synthetic, instant-ngp, LLFF).
+"""``load_scene``: detect a scene folder's format and load it (NeRF Synthetic, instant-ngp, LLFF, COLMAP).
 
 Detection order: ``transforms_train.json`` -> Blender / NeRF Synthetic; ``transforms.json`` ->
-instant-ngp / nerfstudio; ``poses_bounds.npy`` -> LLFF.  A folder matching none is an ``InputError``
-listing what was looked for.  Passing one of those files instead of its folder is accepted.
+instant-ngp / nerfstudio; ``poses_bounds.npy`` -> LLFF; a COLMAP model (``sparse/0/cameras.bin`` or
+``.txt``, see :mod:`senerf.data.colmap`) -> COLMAP.  A folder matching none is an ``InputError`` listing what
+was looked for.  Passing one of the first three files instead of its folder is accepted.
 
 Downscaling: ``downscale`` divides both image sides (``>= 1``, not necessarily an integer).  Sides that do
 not divide evenly are rounded half up (``floor(side / downscale + 0.5)``) and intrinsics are scaled per
@@ -25,6 +26,7 @@ from pathlib import Path
 
 from ..errors import InputError
 from .blender import load_blender, load_ngp
+from .colmap import colmap_model_folder, load_colmap
 from .llff import load_llff
 from .scene import Scene, as_background
 
@@ -44,8 +46,8 @@ def scene_root(path) -> Path:
 
 
 def detect_format(root) -> str:
-    """``'blender'``, ``'ngp'`` or ``'llff'`` for a scene folder (or its marker file, see :func:`scene_root`);
-    ``InputError`` when it matches none."""
+    """``'blender'``, ``'ngp'``, ``'llff'`` or ``'colmap'`` for a scene folder (or its marker file, see
+    :func:`scene_root`); ``InputError`` when it matches none."""
     root = scene_root(root)
     if root.is_file():
         raise InputError(f"is a file; expected a scene folder (or one of its {', '.join(sorted(_MARKER_NAMES))})",
@@ -55,7 +57,9 @@ def detect_format(root) -> str:
     for fmt, marker in FORMAT_FILES:
         if (root / marker).is_file():
             return fmt
-    looked = ", ".join(m for _, m in FORMAT_FILES)
+    if colmap_model_folder(root) is not None:
+        return "colmap"
+    looked = ", ".join(m for _, m in FORMAT_FILES) + ", sparse/0/cameras.bin (or .txt)"
     raise InputError(f"not a scene folder: none of {looked} found", file=root)
 
 
@@ -97,7 +101,7 @@ def load_scene(path, downscale: float = 1, background=None) -> Scene:
     bg = None if background is None else as_background(background)
     root = scene_root(path)
     fmt = detect_format(root)
-    loader = {"blender": load_blender, "ngp": load_ngp, "llff": load_llff}[fmt]
+    loader = {"blender": load_blender, "ngp": load_ngp, "llff": load_llff, "colmap": load_colmap}[fmt]
     scene = loader(root, downscale=d)
     if bg is None:
         return scene

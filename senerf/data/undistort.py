@@ -29,21 +29,25 @@ Convention:
 from __future__ import annotations
 
 import math
+from collections import OrderedDict
 from dataclasses import dataclass
 
 import cv2
 import numpy as np
 
+from ..errors import InputError
 from ..geometry import Intrinsics
 
 __all__ = ["Distortion", "distort_pixels", "undistorted_intrinsics", "undistortion_maps", "undistort_image",
-           "DistortionError"]
+           "DistortionError", "Undistorter"]
 
 _N_COEFFS = {"opencv": 5, "fisheye": 4}
 # The pinhole focal factor is searched within [1/_SCALE_LIMIT, _SCALE_LIMIT] of the photo's, and no wider than
 # a view whose farthest pixel is _MAX_OFF_AXIS_DEG off the optical axis.
 _SCALE_LIMIT = 64.0
 _MAX_OFF_AXIS_DEG = 80.0
+# Undistortion maps an Undistorter keeps: frames of up to this many cameras interleaved reuse theirs.
+_MAPS_KEPT = 4
 _BISECTIONS = 40
 # The focal search keeps every border sample within the photo's pixel centres exactly; the full float32 maps may
 # then fall this far (pixels) outside them, float32's rounding at 10^4 pixels being 1e-3.
@@ -282,3 +286,48 @@ def undistort_image(img: np.ndarray, maps: tuple) -> np.ndarray:
         out[..., :3] *= a > 0.0
         np.clip(out, 0.0, 1.0, out=out)
     return out
+
+
+class Undistorter:
+    """The loaders' ``prepare`` for :func:`senerf.data._io.load_images`: undistorts each view's photo as it is
+    decoded and records the pinhole camera it was resampled onto.
+
+    Args:
+        entries: one dict per view with ``distortion`` (:class:`Distortion` or ``None``), and for error
+            messages ``path`` (the image), ``file`` and ``distortion_field`` (where the distortion was given).
+        photo_camera: ``photo_camera(entry, height, width) -> Intrinsics``, the photo's camera at its decoded
+            size.
+
+    After loading, ``pinhole`` maps each undistorted view's index to its pinhole camera (decoded size).  The
+    sampling maps of the last few cameras are kept, so frames sharing a camera compute them once.
+    """
+
+    def __init__(self, entries: list, photo_camera) -> None:
+        self.entries = entries
+        self.photo_camera = photo_camera
+        self.pinhole = {}
+        self._maps = OrderedDict()  # (k_photo, distortion) -> (k_pinhole, maps)
+
+    def _camera(self, e: dict, k_photo: Intrinsics) -> tuple:
+        key = (k_photo, e["distortion"])
+        if key in self._maps:
+            self._maps.move_to_end(key)
+            return self._maps[key]
+        try:
+            k_pinhole = undistorted_intrinsics(k_photo, e["distortion"])
+            entry = (k_pinhole, undistortion_maps(k_photo, e["distortion"], k_pinhole))
+        except DistortionError as exc:
+            raise InputError(f"cannot undistort {e['path'].name}: {exc}", file=e["file"],
+                             field=e["distortion_field"]) from None
+        self._maps[key] = entry
+        while len(self._maps) > _MAPS_KEPT:
+            self._maps.popitem(last=False)
+        return entry
+
+    def __call__(self, k: int, img: np.ndarray) -> np.ndarray:
+        e = self.entries[k]
+        if e["distortion"] is None:
+            return img
+        k_pinhole, maps = self._camera(e, self.photo_camera(e, img.shape[0], img.shape[1]))
+        self.pinhole[k] = k_pinhole
+        return undistort_image(img, maps)

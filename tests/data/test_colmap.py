@@ -1,0 +1,204 @@
+"""Tests of senerf/data/colmap.py: COLMAP model files (binary and text), poses, bounds, kinds, errors.
+
+The model files are written here from COLMAP's documented layouts, independently of the reader; quaternions
+come from scipy.  On the real fern scene the reader is checked against what LLFF's ``imgs2poses`` computed from
+the same COLMAP model (``poses_bounds.npy``: focal, image size and every view's depth bounds).
+"""
+
+from __future__ import annotations
+
+import shutil
+import struct
+
+import imageio.v3 as iio
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from senerf.data import Distortion, detect_format, load_llff, load_scene, undistorted_intrinsics
+from senerf.data.colmap import read_cameras, read_images, read_points3d
+from senerf.errors import InputError
+from senerf.geometry import Intrinsics, invert_rigid, pose_from_spherical
+
+MODEL_IDS = {"SIMPLE_PINHOLE": 0, "PINHOLE": 1, "SIMPLE_RADIAL": 2, "RADIAL": 3, "OPENCV": 4, "OPENCV_FISHEYE": 5,
+             "FULL_OPENCV": 6}
+
+
+def qvec_tvec(c2w: np.ndarray) -> tuple:
+    """COLMAP's world-to-camera ``(qw, qx, qy, qz)``, ``t`` of an OpenCV ``c2w`` (scipy's quaternion)."""
+    w2c = invert_rigid(c2w)
+    x, y, z, w = Rotation.from_matrix(w2c[:3, :3]).as_quat()
+    return (w, x, y, z), tuple(w2c[:3, 3])
+
+
+def write_model(folder, cameras: dict, images: list, points: list, binary: bool) -> None:
+    """``cameras``: id -> (model, w, h, params); ``images``: (id, c2w, camera id, name); ``points``:
+    (xyz, [image ids])."""
+    folder.mkdir(parents=True, exist_ok=True)
+    if binary:
+        out = struct.pack("<Q", len(cameras))
+        for cid, (model, w, h, params) in cameras.items():
+            out += struct.pack("<iiQQ", cid, MODEL_IDS[model], w, h) + struct.pack(f"<{len(params)}d", *params)
+        (folder / "cameras.bin").write_bytes(out)
+        out = struct.pack("<Q", len(images))
+        for iid, c2w, cid, name in images:
+            q, t = qvec_tvec(c2w)
+            out += struct.pack("<i7di", iid, *q, *t, cid) + name.encode() + b"\0"
+            out += struct.pack("<Q", 2) + struct.pack("<ddq", 1.5, 2.5, -1) + struct.pack("<ddq", 3.0, 4.0, 7)
+        (folder / "images.bin").write_bytes(out)
+        out = struct.pack("<Q", len(points))
+        for pid, (xyz, seen) in enumerate(points, 1):
+            out += struct.pack("<Q3d3BdQ", pid, *xyz, 10, 20, 30, 0.5, len(seen))
+            out += b"".join(struct.pack("<ii", s, 0) for s in seen)
+        (folder / "points3D.bin").write_bytes(out)
+        return
+    lines = ["# Camera list with one line of data per camera:", "#   CAMERA_ID, MODEL, WIDTH, HEIGHT, PARAMS[]"]
+    lines += [f"{cid} {model} {w} {h} " + " ".join(repr(float(p)) for p in params)
+              for cid, (model, w, h, params) in cameras.items()]
+    (folder / "cameras.txt").write_text("\n".join(lines) + "\n")
+    lines = ["# Image list with two lines of data per image:"]
+    for k, (iid, c2w, cid, name) in enumerate(images):
+        q, t = qvec_tvec(c2w)
+        lines.append(f"{iid} " + " ".join(repr(float(v)) for v in (*q, *t)) + f" {cid} {name}")
+        lines.append("1.5 2.5 -1 3.0 4.0 7" if k % 2 else "")  # an image without 2D points: an empty line
+    (folder / "images.txt").write_text("\n".join(lines) + "\n")
+    lines = ["# 3D point list"]
+    for pid, (xyz, seen) in enumerate(points, 1):
+        lines.append(f"{pid} " + " ".join(repr(float(v)) for v in xyz) + " 10 20 30 0.5 "
+                     + " ".join(f"{s} 0" for s in seen))
+    (folder / "points3D.txt").write_text("\n".join(lines) + "\n")
+
+
+def ring_scene(root, binary: bool, azimuths, model=("PINHOLE", (20.0, 21.0, 8.0, 6.0)), elevation=20.0):
+    """Cameras on a ring looking at the origin, tiny images, points around the origin seen by all."""
+    poses = [pose_from_spherical(az, elevation, 4.0) for az in azimuths]
+    names = [f"v_{k:02d}.png" for k in range(len(poses))]
+    images = [(10 + k, pose, 1, name) for k, (pose, name) in enumerate(zip(poses, names))]
+    rng = np.random.default_rng(0)
+    points = [(tuple(rng.uniform(-0.5, 0.5, 3)), [10 + k for k in range(len(poses))]) for _ in range(40)]
+    write_model(root / "sparse" / "0", {1: (model[0], 16, 12, model[1])}, images[::-1], points, binary)
+    (root / "images").mkdir(parents=True, exist_ok=True)
+    for k, name in enumerate(names):
+        iio.imwrite(root / "images" / name, np.random.default_rng(k).integers(0, 256, (12, 16, 3), dtype=np.uint8))
+    return root, np.stack(poses)
+
+
+@pytest.mark.parametrize("binary", [True, False])
+def test_object_capture_poses_and_cameras_read_back(tmp_path, binary):
+    root, poses = ring_scene(tmp_path / "s", binary, np.arange(0, 360, 30))
+    assert detect_format(root) == "colmap"
+    scene = load_scene(root)
+    assert scene.kind == "object" and scene.near is None and scene.n_images == 12
+    np.testing.assert_allclose(scene.c2w, poses, atol=1e-12)  # sorted by name, COLMAP's world frame kept
+    assert scene.intrinsics == Intrinsics(20.0, 21.0, 8.0, 6.0, 16, 12)
+    assert [p.name for p in scene.image_paths] == [f"v_{k:02d}.png" for k in range(12)]
+    assert scene.splits["test"].tolist() == [0, 8] and len(scene.splits["train"]) == 10
+
+
+def test_binary_and_text_models_read_the_same(tmp_path):
+    for binary in (True, False):
+        ring_scene(tmp_path / str(binary), binary, [0, 10, 20], model=("OPENCV", (20, 21, 8, 6, -0.1, 0.01, 1e-3, 0)))
+    folders = [tmp_path / str(b) / "sparse" / "0" for b in (True, False)]
+    assert read_cameras(folders[0] / "cameras.bin") == read_cameras(folders[1] / "cameras.txt")
+    assert read_images(folders[0] / "images.bin") == read_images(folders[1] / "images.txt")
+    (xyz_b, (ids_b, idx_b)), (xyz_t, (ids_t, idx_t)) = (read_points3d(folders[0] / "points3D.bin"),
+                                                        read_points3d(folders[1] / "points3D.txt"))
+    np.testing.assert_array_equal(xyz_b, xyz_t)
+    assert ids_b.tolist() == ids_t.tolist() == [10, 11, 12] * 40 and idx_b.tolist() == idx_t.tolist()
+
+
+def test_forward_facing_capture_is_normalised_as_llff(tmp_path):
+    root, poses = ring_scene(tmp_path / "s", True, [0, 5, 10, 15, 20])
+    scene = load_scene(root)
+    assert scene.kind == "forward_facing" and 0 < scene.near < scene.far
+    assert np.allclose(scene.c2w[:, :3, :3].mean(0), np.eye(3), atol=0.1)  # recentred: mean pose ~ identity
+    assert np.abs(scene.c2w[:, :3, 3].mean(0)).max() < 1e-12
+    # bd_factor: the nearest bound becomes 1 / 0.75
+    assert scene.near == pytest.approx(1 / 0.75)
+
+
+def test_lens_distortion_is_undone(tmp_path):
+    root, _ = ring_scene(tmp_path / "s", False, np.arange(0, 360, 60),
+                         model=("SIMPLE_RADIAL", (20.0, 8.0, 6.0, -0.08)))
+    scene = load_scene(root)
+    expected = undistorted_intrinsics(Intrinsics(20.0, 20.0, 8.0, 6.0, 16, 12),
+                                      Distortion("opencv", (-0.08, 0.0, 0.0, 0.0, 0.0)))
+    assert scene.intrinsics == expected != Intrinsics(20.0, 20.0, 8.0, 6.0, 16, 12)
+
+
+def test_real_fern_model_agrees_with_llffs_poses_bounds(fern_dir):
+    # poses_bounds.npy was made by LLFF's imgs2poses from this very COLMAP model
+    from senerf.data.colmap import _depth_bounds
+    from senerf.data.llff import _opencv_poses
+
+    rows = np.load(fern_dir / "poses_bounds.npy").astype(np.float64)
+    (cam,) = read_cameras(fern_dir / "sparse" / "0" / "cameras.bin").values()
+    assert (cam.model, cam.height, cam.width) == ("SIMPLE_RADIAL", 3024, 4032)
+    np.testing.assert_allclose(rows[:, 4:15:5], [[3024, 4032, cam.params[0]]] * 20, rtol=1e-12)
+    points = read_points3d(fern_dir / "sparse" / "0" / "points3D.bin")
+    bounds = _depth_bounds(_opencv_poses(rows, fern_dir), list(range(1, 21)), points, fern_dir)
+    np.testing.assert_allclose(bounds, rows[:, 15:17], rtol=1e-12)
+
+
+def test_fern_as_a_colmap_folder_loads_as_llff_does(fern_dir, tmp_path):
+    # a COLMAP folder made from fern: its real cameras (scaled to images_8) and points, and images.txt holding
+    # the poses of poses_bounds.npy; poses and bounds must come out as load_llff's
+    from senerf.data.llff import _opencv_poses
+
+    rows = np.load(fern_dir / "poses_bounds.npy").astype(np.float64)
+    (cam,) = read_cameras(fern_dir / "sparse" / "0" / "cameras.bin").values()
+    f, cx, cy, k = cam.params
+    names = sorted(p.name for p in (fern_dir / "images_8").iterdir())
+    images = [(i + 1, pose, 1, name) for i, (pose, name) in enumerate(zip(_opencv_poses(rows, fern_dir), names))]
+    model = tmp_path / "fern" / "sparse" / "0"
+    write_model(model, {1: ("SIMPLE_RADIAL", 504, 378, (f / 8, cx / 8, cy / 8, k))}, images[::-1], [], False)
+    (model / "points3D.txt").unlink()
+    shutil.copy(fern_dir / "sparse" / "0" / "points3D.bin", model / "points3D.bin")
+    shutil.copytree(fern_dir / "images_8", tmp_path / "fern" / "images")
+    ours, llff = load_scene(tmp_path / "fern"), load_llff(fern_dir, downscale=8)
+    assert ours.kind == "forward_facing"
+    np.testing.assert_allclose(ours.c2w, llff.c2w, atol=1e-10)
+    assert (ours.near, ours.far) == pytest.approx((llff.near, llff.far), rel=1e-12)
+    assert ours.splits["test"].tolist() == llff.splits["test"].tolist()
+    # LLFF ignores the lens's k = 0.0198; COLMAP's camera is used, undistorted
+    assert ours.intrinsics == undistorted_intrinsics(Intrinsics(f / 8, f / 8, cx / 8, cy / 8, 504, 378),
+                                                     Distortion("opencv", (k, 0.0, 0.0, 0.0, 0.0)))
+
+
+def _error(root) -> str:
+    with pytest.raises(InputError) as info:
+        load_scene(root)
+    assert "\n" not in str(info.value)
+    return str(info.value)
+
+
+def test_bad_models_name_the_file_and_field(tmp_path):
+    root, _ = ring_scene(tmp_path / "a", True, np.arange(0, 360, 60))
+    model = root / "sparse" / "0"
+    data = (model / "images.bin").read_bytes()
+    (model / "images.bin").write_bytes(data[:-5])
+    assert "images.bin: file ends inside" in _error(root)
+    (model / "images.bin").unlink()
+    assert "missing images.bin or images.txt" in _error(root)
+
+    root, _ = ring_scene(tmp_path / "b", False, np.arange(0, 360, 60), model=("FULL_OPENCV", tuple(range(1, 13))))
+    assert "cameras.txt: camera 1: camera model FULL_OPENCV is not supported" in _error(root)
+    (root / "sparse" / "0" / "cameras.txt").write_text("1 PINHOLE 16 12 20 20 8\n")
+    assert "cameras.txt: line 1: PINHOLE takes 4 parameters, got 3" in _error(root)
+    (root / "sparse" / "0" / "cameras.txt").write_text("1 PINHOLE 16 12 20 20 8 six\n")
+    assert "cameras.txt: line 1: expected numbers" in _error(root)
+    (root / "sparse" / "0" / "cameras.txt").write_text("2 PINHOLE 16 12 20 20 8 6\n")
+    assert "images.txt: image 10 (v_00.png): camera 1 is not in cameras.txt" in _error(root)
+
+    root, _ = ring_scene(tmp_path / "c", False, np.arange(0, 360, 60))
+    (root / "images" / "v_03.png").unlink()
+    assert "image 13 (v_03.png): image not found" in _error(root)
+    iio.imwrite(root / "images" / "v_03.png", np.zeros((12, 15, 3), np.uint8))
+    assert "v_03.png" in _error(root)  # a size that is not the others' (and not its camera's)
+
+    root, _ = ring_scene(tmp_path / "d", False, [0, 5, 10])
+    text = (root / "sparse" / "0" / "images.txt").read_text().replace(" 1 v_01.png", " 2 v_01.png")
+    (root / "sparse" / "0" / "images.txt").write_text(text)
+    with open(root / "sparse" / "0" / "cameras.txt", "a") as fh:
+        fh.write("2 PINHOLE 16 12 30 30 8 6\n")
+    assert "one NDC frustum, built from one camera" in _error(root)
