@@ -64,6 +64,9 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--n-views", type=int_flag("--n-views"), help="number of views (llff, random8)")
     g.add_argument("--protocol", choices=_CLI_PROTOCOLS,
                    help="few-shot protocol (default: 'views' with --views, else llff for forward-facing and COLMAP scenes, extreme for the others)")
+    g.add_argument("--scene-kind", choices=("object", "forward-facing"),
+                   help="COLMAP scenes: fit as an object or as a forward-facing (LLFF, NDC) capture instead of "
+                        "the kind the cameras' spread suggests")
     g.add_argument("--downscale", type=float_flag("--downscale", 1.0),
                    help="image downscale factor (default 1; LLFF: 8, relative to full resolution)")
     t = p.add_argument_group("training")
@@ -341,7 +344,10 @@ def _run(args, argv) -> int:
     scene_dir = scene_root(args.scene)  # a marker file (transforms_train.json, ...) names its folder
     fmt = detect_format(scene_dir)
     downscale = args.downscale if args.downscale is not None else (8.0 if fmt == "llff" else 1.0)
-    scene = load_scene(scene_dir, downscale=downscale)
+    kind = None if args.scene_kind is None else args.scene_kind.replace("-", "_")
+    if kind is not None and fmt != "colmap":
+        raise InputError(f"applies to COLMAP scenes only; {scene_dir} is a {fmt} scene", field="--scene-kind")
+    scene = load_scene(scene_dir, downscale=downscale, kind=kind)
     from senerf.train.metrics import SSIM_MIN_SIDE
 
     if min(scene.size) < SSIM_MIN_SIDE:
@@ -382,6 +388,8 @@ def _run(args, argv) -> int:
                   views=args.views, n_views=args.n_views, preset=args.preset, train=config_to_dict(train_cfg),
                   model=config_to_dict(model),
                   selftrain=None if st_cfg is None else config_to_dict(st_cfg))
+    if kind is not None:  # only when chosen: runs made before the flag existed keep their identity
+        config["scene_kind"] = kind
     # what must match to resume: everything but the device and the number of iterations (a finished
     # baseline can be extended by self-training with the same settings)
     identity = {k: v for k, v in config.items() if k != "selftrain"}

@@ -172,7 +172,10 @@ def load_fitted_run(folder, iteration: int | None = None, device: str = "cpu") -
     downscale = run.get("downscale")
     if isinstance(downscale, bool) or not isinstance(downscale, (int, float)) or not 1.0 <= downscale < float("inf"):
         raise InputError(f"expected a number >= 1, got {downscale!r}", file=run_path, field="downscale")
-    scene = load_scene(scene_dir, downscale=downscale)
+    kind = run.get("scene_kind")
+    if kind not in (None, "object", "forward_facing"):
+        raise InputError(f"expected 'object' or 'forward_facing', got {kind!r}", file=run_path, field="scene_kind")
+    scene = load_scene(scene_dir, downscale=downscale, kind=kind)
     resolution = metrics.get("resolution")
     if list(scene.size) != resolution:
         raise InputError(f"the scene is {scene.size[0]}x{scene.size[1]} (H x W) at downscale {downscale:g}; the run "

@@ -425,3 +425,30 @@ def test_help_names_every_output(capsys):
     text = " ".join(capsys.readouterr().out.split())
     for name in (*_OUTPUT_NAMES, "iter_K/test/", "iter_K/pseudo/"):
         assert name in text, name
+
+
+def test_scene_kind_is_chosen_for_colmap_scenes_recorded_and_rendered_with(tmp_path, tiny_scene, capsys):
+    # a COLMAP capture around an object, fitted as chosen; senerf-render reloads it with the recorded kind
+    import importlib.util
+    from pathlib import Path
+
+    import numpy as np
+
+    from senerf.flythrough import main as render
+
+    spec = importlib.util.spec_from_file_location("colmap_writers", Path(__file__).parent / "data" / "test_colmap.py")
+    writers = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(writers)
+    root, _ = writers.ring_scene(tmp_path / "ring", True, np.arange(0, 360, 30), elevation=5.0)
+    assert main([str(root), "--out", str(tmp_path / "o"), "--scene-kind", "forward-facing", *SMALL]) == 2
+    assert "kind: some rays look" in _one_error_line(capsys)
+    assert main([str(tiny_scene), "--out", str(tmp_path / "o"), "--scene-kind", "object", *TINY]) == 2
+    assert "--scene-kind: applies to COLMAP scenes only" in _one_error_line(capsys)
+    out = tmp_path / "fit"
+    assert main([str(root), "--out", str(out), "--scene-kind", "object", *SMALL]) == 0
+    record = json.loads((out / "run.json").read_text())
+    assert record["format"] == "colmap" and record["scene_kind"] == "object" and record["protocol"] == "llff"
+    assert render([str(out), "--path", "test", "--quiet"]) == 0
+    capsys.readouterr()
+    assert main([str(root), "--out", str(out), *SMALL]) == 2   # resuming without the choice is another run
+    assert "scene_kind" in _one_error_line(capsys)

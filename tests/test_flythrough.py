@@ -242,6 +242,8 @@ def _nan_field(state):
     ("checkpoints/iter_0_train.pt", _nan_field, "iter_0_train.pt: its field holds non-finite values"),
     ("run.json", lambda r: r.update(scene_dir=5), "run.json: scene_dir: missing or of the wrong type"),
     ("run.json", lambda r: r.update(downscale=float("inf")), "run.json: downscale: expected a number >= 1, got inf"),
+    ("run.json", lambda r: r.update(scene_kind="sideways"), "run.json: scene_kind: expected 'object' or"),
+    ("run.json", lambda r: r.update(scene_kind="object"), "kind: only a COLMAP scene's kind can be chosen"),
     ("metrics.json", lambda m: m.update(train_views=[0, 8]),   # the scene has 8 views: 5 train, 3 test
      "metrics.json: train_views: expected a non-empty list of view indices in [0, 8)"),
     ("metrics.json", lambda m: m.update(train_views=[True, 1]), "metrics.json: train_views: expected a non-empty list"),

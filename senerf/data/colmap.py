@@ -12,7 +12,8 @@ image's ``NAME``.  Views are the registered images sorted by name (LLFF's order)
 their size.
 
 Kind: **forward-facing** when every camera looks within :data:`FORWARD_FACING_DEG` degrees of the cameras'
-mean viewing direction (an LLFF-style capture), else **object** (a capture around something, fitted in a
+mean viewing direction and every ray, image corners included, within :data:`MAX_RAY_DEG` (an LLFF-style
+capture: fern's cameras stay within 10 degrees; :func:`view_spread`), else **object** (a capture around something, fitted in a
 box as the JSON formats' captures are, in COLMAP's world frame).  A forward-facing scene is normalised as :func:`load_llff` normalises
 LLFF (``bd_factor``, ``recenter``); its per-image depth bounds are what LLFF's ``imgs2poses`` takes, the 0.1th
 and 99.9th percentiles of the depths of the 3D points each image sees, and it needs one camera (NDC is built
@@ -41,11 +42,13 @@ from .llff import LLFF_HOLDOUT, recenter_poses
 from .scene import Scene
 from .undistort import Distortion, Undistorter
 
-__all__ = ["load_colmap", "colmap_model_folder", "read_cameras", "read_images", "read_points3d", "ColmapCamera",
-           "ColmapImage", "FORWARD_FACING_DEG", "CAMERA_MODELS"]
+__all__ = ["load_colmap", "colmap_model_folder", "view_spread", "read_cameras", "read_images", "read_points3d",
+           "ColmapCamera", "ColmapImage", "FORWARD_FACING_DEG", "MAX_RAY_DEG", "CAMERA_MODELS"]
 
-#: A capture is forward-facing when every camera looks within this many degrees of the mean direction.
-FORWARD_FACING_DEG = 45.0
+#: A capture is forward-facing when every camera looks within this many degrees of the cameras' mean direction
+#: and every ray (image corners included) within MAX_RAY_DEG of it: NDC needs every ray to move forward.
+FORWARD_FACING_DEG = 30.0
+MAX_RAY_DEG = 80.0
 
 #: COLMAP's camera models: id -> (name, number of parameters); those with a ``None`` reader are refused.
 CAMERA_MODELS = {
@@ -54,6 +57,8 @@ CAMERA_MODELS = {
     9: ("RADIAL_FISHEYE", 5), 10: ("THIN_PRISM_FISHEYE", 12),
 }
 _N_PARAMS = {name: n for name, n in CAMERA_MODELS.values()}
+_SUPPORTED = ("SIMPLE_PINHOLE, PINHOLE, SIMPLE_RADIAL, RADIAL, OPENCV, OPENCV_FISHEYE, SIMPLE_RADIAL_FISHEYE, "
+              "RADIAL_FISHEYE")
 
 
 @dataclass(frozen=True)
@@ -73,8 +78,7 @@ class ColmapCamera:
         elif m in ("PINHOLE", "OPENCV", "OPENCV_FISHEYE"):
             k = Intrinsics(p[0], p[1], p[2], p[3], self.width, self.height)
         else:
-            raise ValueError(f"camera model {m} is not supported (supported: SIMPLE_PINHOLE, PINHOLE, "
-                             "SIMPLE_RADIAL, RADIAL, OPENCV, OPENCV_FISHEYE, SIMPLE_RADIAL_FISHEYE, RADIAL_FISHEYE)")
+            raise ValueError(f"camera model {m} is not supported (supported: {_SUPPORTED})")
         distortion = None
         if m == "SIMPLE_RADIAL":
             distortion = ("opencv", (p[3], 0.0, 0.0, 0.0, 0.0))
@@ -193,8 +197,9 @@ def read_cameras(path: Path) -> dict:
         (n,) = r.take("Q", "the camera count")
         for i in range(n):
             cam_id, model_id, width, height = r.take("iiQQ", f"camera {i}")
-            if model_id not in CAMERA_MODELS:
-                raise InputError(f"unknown camera model id {model_id}", file=path, field=f"camera {cam_id}")
+            if model_id not in CAMERA_MODELS:   # a newer COLMAP's model: its parameter count is unknown here
+                raise InputError(f"camera model id {model_id} is not one senerf reads (supported: {_SUPPORTED})",
+                                 file=path, field=f"camera {cam_id}")
             model, n_params = CAMERA_MODELS[model_id]
             cams[cam_id] = _camera(model, width, height, r.take("d" * n_params, f"camera {cam_id}"), path,
                                    f"camera {cam_id}")
@@ -202,9 +207,11 @@ def read_cameras(path: Path) -> dict:
         return cams
     for number, fields in _text_lines(path):
         where = f"line {number}"
-        if len(fields) < 4 or fields[1] not in _N_PARAMS:
-            raise InputError("expected CAMERA_ID MODEL WIDTH HEIGHT PARAMS[] with a COLMAP model name",
-                             file=path, field=where)
+        if len(fields) < 4:
+            raise InputError("expected CAMERA_ID MODEL WIDTH HEIGHT PARAMS[]", file=path, field=where)
+        if fields[1] not in _N_PARAMS:
+            raise InputError(f"camera model {fields[1]} is not supported (supported: {_SUPPORTED})", file=path,
+                             field=where)
         cam_id, width, height = _numbers([fields[0], fields[2], fields[3]], int, path, where)
         cams[cam_id] = _camera(fields[1], width, height, _numbers(fields[4:], float, path, where), path, where)
     return cams
@@ -230,20 +237,35 @@ def read_images(path: Path) -> list:
         text = path.read_text(encoding="utf-8")
     except (OSError, UnicodeDecodeError) as exc:
         raise InputError(f"cannot read ({exc})", file=path) from None
-    # two lines an image (its line, then its 2D points, empty when it has none), comments aside
-    lines = [(n, line) for n, line in enumerate(text.splitlines(), 1) if not line.lstrip().startswith("#")]
-    for (number, line) in lines[0::2]:
-        fields = line.split()
-        if not fields:
-            continue   # a blank line where an image line would be: the file's trailing newline
-        where = f"line {number}"
+    # as COLMAP reads it: blank and comment lines are skipped to find an image line; the line after it holds
+    # the image's 2D points (X Y POINT3D_ID triples), empty when it has none, and must be there
+    lines = text.splitlines()
+    i = 0
+    while i < len(lines):
+        line = lines[i].strip()
+        if not line or line.startswith("#"):
+            i += 1
+            continue
+        fields, where = line.split(), f"line {i + 1}"
         if len(fields) < 10:
             raise InputError("expected IMAGE_ID QW QX QY QZ TX TY TZ CAMERA_ID NAME", file=path, field=where)
         image_id, camera_id = _numbers([fields[0], fields[8]], int, path, where)
         values = _numbers(fields[1:8], float, path, where)
         out.append(_image(image_id, values[:4], values[4:7], camera_id, line.split(None, 9)[9].strip(), path,
                           where))
+        points = lines[i + 1].split() if i + 1 < len(lines) else []
+        if len(points) % 3 or not all(_is_number(f) for f in points):
+            raise InputError(f"expected image {image_id}'s 2D points (X Y POINT3D_ID triples, an empty line for "
+                             "none): COLMAP writes two lines an image", file=path, field=f"line {i + 2}")
+        i += 2
     return out
+
+
+def _is_number(text: str) -> bool:
+    try:
+        return math.isfinite(float(text))
+    except ValueError:
+        return False
 
 
 def _image(image_id, qvec, tvec, camera_id, name, path: Path, where: str) -> ColmapImage:
@@ -263,8 +285,9 @@ def read_points3d(path: Path) -> tuple:
         (n,) = r.take("Q", "the point count")
         for i in range(n):
             rec = r.take("Q3d3BdQ", f"point {i}")
-            track = np.frombuffer(r.data, dtype="<i4", count=2 * rec[8], offset=r.pos) if rec[8] else np.zeros(0)
-            r.skip(8 * rec[8], f"point {rec[0]}'s track")
+            start = r.pos
+            r.skip(8 * rec[8], f"point {rec[0]}'s track")   # checks the length before anything is read
+            track = np.frombuffer(r.data, dtype="<i4", count=2 * rec[8], offset=start) if rec[8] else np.zeros(0)
             xyz.append(rec[1:4])
             image_ids.append(track[0::2])
             index.append(np.full(rec[8], i))
@@ -303,9 +326,12 @@ def _model_file(folder: Path, stem: str) -> Path:
 def _depth_bounds(c2w: np.ndarray, image_ids: list, points: tuple, file: Path) -> np.ndarray:
     """``(n, 2)`` near/far per view: the 0.1th and 99.9th percentile depths of the points each view sees."""
     xyz, (seen_by, point_index) = points
+    order = np.argsort(seen_by, kind="stable")
+    seen_sorted, index_sorted = seen_by[order], point_index[order]
     bounds = np.zeros((len(image_ids), 2))
     for k, (pose, image_id) in enumerate(zip(c2w, image_ids)):
-        pts = xyz[np.unique(point_index[seen_by == image_id])]  # a point its track lists twice counts once
+        lo, hi = np.searchsorted(seen_sorted, [image_id, image_id + 1])
+        pts = xyz[np.unique(index_sorted[lo:hi])]  # a point its track lists twice counts once
         z = (pts - pose[:3, 3]) @ pose[:3, 2]
         z = z[z > 0]
         if z.size == 0:
@@ -315,7 +341,32 @@ def _depth_bounds(c2w: np.ndarray, image_ids: list, points: tuple, file: Path) -
     return bounds
 
 
-def load_colmap(root: Path, downscale: float = 1.0, bd_factor: float | None = 0.75, recenter: bool = True) -> Scene:
+def view_spread(c2w: np.ndarray, intrinsics) -> tuple:
+    """How far a capture's cameras and rays turn from their mean viewing direction.
+
+    Args:
+        c2w: ``(n, 4, 4)`` OpenCV camera-to-world.
+        intrinsics: ``n`` :class:`Intrinsics`.
+
+    Returns:
+        ``(axis_deg, ray_deg, forward_facing)``: the largest angle between a camera's optical axis and the
+        normalised sum of them all; the largest between an image corner's ray and that sum; and whether the
+        capture is forward-facing: ``axis_deg <= FORWARD_FACING_DEG`` and ``ray_deg <= MAX_RAY_DEG``.
+    """
+    mean = c2w[:, :3, 2].sum(axis=0)
+    mean = mean / max(float(np.linalg.norm(mean)), 1e-12)
+    axis = np.degrees(np.arccos(np.clip(c2w[:, :3, 2] @ mean, -1.0, 1.0))).max()
+    rays = []
+    for pose, k in zip(c2w, intrinsics):
+        for u, v in ((0.0, 0.0), (k.width, 0.0), (0.0, k.height), (k.width, k.height)):
+            d = pose[:3, :3] @ np.array([(u - k.cx) / k.fx, (v - k.cy) / k.fy, 1.0])
+            rays.append(d / np.linalg.norm(d))
+    ray = np.degrees(np.arccos(np.clip(np.asarray(rays) @ mean, -1.0, 1.0))).max()
+    return float(axis), float(ray), bool(axis <= FORWARD_FACING_DEG and ray <= MAX_RAY_DEG)
+
+
+def load_colmap(root: Path, downscale: float = 1.0, bd_factor: float | None = 0.75, recenter: bool = True,
+                kind: str | None = None) -> Scene:
     """Load a COLMAP scene folder; see the module docstring.
 
     Args:
@@ -323,6 +374,8 @@ def load_colmap(root: Path, downscale: float = 1.0, bd_factor: float | None = 0.
         downscale: divide image sides by this (``>= 1``).
         bd_factor, recenter: LLFF's normalisation of a forward-facing capture (:func:`load_llff`); unused for
             an object capture, which keeps COLMAP's world frame.
+        kind: ``None`` to decide from :func:`view_spread`, or ``'object'`` / ``'forward_facing'`` (the latter
+            refused when a ray turns 90 degrees or more from the mean direction: NDC cannot hold it).
 
     Raises:
         InputError: a missing or malformed model file, an unsupported camera model, a missing image, an image
@@ -330,6 +383,8 @@ def load_colmap(root: Path, downscale: float = 1.0, bd_factor: float | None = 0.
             that sees no point.
     """
     root = Path(root)
+    if kind not in (None, "object", "forward_facing"):
+        raise InputError(f"expected 'object' or 'forward_facing', got {kind!r}", field="kind")
     folder = colmap_model_folder(root)
     if folder is None:
         raise InputError("no COLMAP model (sparse/0/cameras.bin or cameras.txt)", file=root)
@@ -338,6 +393,11 @@ def load_colmap(root: Path, downscale: float = 1.0, bd_factor: float | None = 0.
     images = sorted(read_images(img_file), key=lambda im: im.name)
     if not images:
         raise InputError("no registered image", file=img_file)
+    for key, what in ((lambda im: im.image_id, "id"), (lambda im: im.name, "name")):
+        values = [key(im) for im in images]
+        twice = sorted({v for v in values if values.count(v) > 1}, key=str)
+        if twice:
+            raise InputError(f"image {what} {twice[0]!r} appears {values.count(twice[0])} times", file=img_file)
     entries, intrinsics, c2w = [], [], []
     for im in images:
         where = f"image {im.image_id} ({im.name})"
@@ -349,7 +409,7 @@ def load_colmap(root: Path, downscale: float = 1.0, bd_factor: float | None = 0.
             raise InputError(str(exc), file=cam_file, field=f"camera {im.camera_id}") from None
         path = _io.resolve_inside(root / "images", im.name, img_file, where)
         entries.append(dict(path=path, field=where, file=img_file, k_photo=k, distortion=distortion,
-                            distortion_field=f"camera {im.camera_id}"))
+                            distortion_file=cam_file, distortion_field=f"camera {im.camera_id}"))
         intrinsics.append(k)
         pose = im.c2w()
         _io.check_rigid(pose, img_file, where)
@@ -367,14 +427,16 @@ def load_colmap(root: Path, downscale: float = 1.0, bd_factor: float | None = 0.
                                            [e["file"] for e in entries], downscale, prepare=undistorter)
     h, w = rgb.shape[1:3]
     intr = tuple(undistorter.pinhole.get(k, photo_camera(e, h0, w0)).resized(w, h) for k, e in enumerate(entries))
-    forward = c2w[:, :3, 2]
-    mean = forward.sum(axis=0)
-    mean /= max(np.linalg.norm(mean), 1e-12)
+    if kind is None:
+        kind = "forward_facing" if view_spread(c2w, intr)[2] else "object"
+    elif kind == "forward_facing" and view_spread(c2w, intr)[1] >= 90.0:
+        raise InputError(f"some rays look {view_spread(c2w, intr)[1]:.0f} degrees away from the cameras' mean "
+                         "direction; a forward-facing (NDC) fit needs every ray within 90", field="kind")
     idx = np.arange(len(images))
     splits = {"train": idx[idx % LLFF_HOLDOUT != 0], "val": idx[:0], "test": idx[idx % LLFF_HOLDOUT == 0]}
     common = dict(name=root.resolve().name, root=root, rgb=rgb, alpha=alpha, intrinsics=intr[0],
                   intrinsics_all=intr, image_paths=tuple(e["path"] for e in entries))
-    if float(np.min(forward @ mean)) < math.cos(math.radians(FORWARD_FACING_DEG)):
+    if kind == "object":
         return Scene(c2w=c2w, splits=splits, kind="object", near=None, far=None, **common)
     if len(set(intr)) > 1:
         raise InputError("a forward-facing capture is fitted in one NDC frustum, built from one camera; these "

@@ -75,7 +75,7 @@ def _check_downscale(downscale) -> float:
     return d
 
 
-def load_scene(path, downscale: float = 1, background=None) -> Scene:
+def load_scene(path, downscale: float = 1, background=None, kind: str | None = None) -> Scene:
     """Load a scene folder of any supported format.
 
     Args:
@@ -85,6 +85,8 @@ def load_scene(path, downscale: float = 1, background=None) -> Scene:
             full resolution).
         background: ``None`` keeps straight colour; a grey value or ``(r, g, b)`` in ``[0, 1]`` returns
             ``rgb`` already composited onto it (``alpha`` is kept, ``Scene.background`` records the colour).
+        kind: COLMAP scenes only: ``'object'`` or ``'forward_facing'`` instead of the kind
+            :func:`senerf.data.colmap.view_spread` picks (the other formats have theirs).
 
     Returns:
         :class:`Scene` with OpenCV ``c2w`` (see :class:`Scene` for the fields).
@@ -101,8 +103,13 @@ def load_scene(path, downscale: float = 1, background=None) -> Scene:
     bg = None if background is None else as_background(background)
     root = scene_root(path)
     fmt = detect_format(root)
-    loader = {"blender": load_blender, "ngp": load_ngp, "llff": load_llff, "colmap": load_colmap}[fmt]
-    scene = loader(root, downscale=d)
+    if kind is not None and fmt != "colmap":
+        raise InputError(f"only a COLMAP scene's kind can be chosen; this is a {fmt} scene, kind "
+                         f"{'forward_facing' if fmt == 'llff' else 'object'}", field="kind")
+    if fmt == "colmap":
+        scene = load_colmap(root, downscale=d, kind=kind)
+    else:
+        scene = {"blender": load_blender, "ngp": load_ngp, "llff": load_llff}[fmt](root, downscale=d)
     if bg is None:
         return scene
     rgb = scene.composite(bg)

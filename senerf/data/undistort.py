@@ -294,7 +294,8 @@ class Undistorter:
 
     Args:
         entries: one dict per view with ``distortion`` (:class:`Distortion` or ``None``), and for error
-            messages ``path`` (the image), ``file`` and ``distortion_field`` (where the distortion was given).
+            messages ``path`` (the image), ``file`` and ``distortion_field`` (where the distortion was given;
+            ``distortion_file`` when that is not ``file``).
         photo_camera: ``photo_camera(entry, height, width) -> Intrinsics``, the photo's camera at its decoded
             size.
 
@@ -317,7 +318,7 @@ class Undistorter:
             k_pinhole = undistorted_intrinsics(k_photo, e["distortion"])
             entry = (k_pinhole, undistortion_maps(k_photo, e["distortion"], k_pinhole))
         except DistortionError as exc:
-            raise InputError(f"cannot undistort {e['path'].name}: {exc}", file=e["file"],
+            raise InputError(f"cannot undistort {e['path'].name}: {exc}", file=e.get("distortion_file", e["file"]),
                              field=e["distortion_field"]) from None
         self._maps[key] = entry
         while len(self._maps) > _MAPS_KEPT:

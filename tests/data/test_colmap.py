@@ -202,3 +202,98 @@ def test_bad_models_name_the_file_and_field(tmp_path):
     with open(root / "sparse" / "0" / "cameras.txt", "a") as fh:
         fh.write("2 PINHOLE 16 12 30 30 8 6\n")
     assert "one NDC frustum, built from one camera" in _error(root)
+
+
+@pytest.mark.parametrize("model, params, expected", [
+    ("SIMPLE_RADIAL", (20, 8, 6, -0.1), ("opencv", (-0.1, 0, 0, 0, 0))),
+    ("RADIAL", (20, 8, 6, -0.1, 0.02), ("opencv", (-0.1, 0.02, 0, 0, 0))),
+    ("OPENCV", (20, 21, 8, 6, -0.1, 0.02, 0.003, -0.004), ("opencv", (-0.1, 0.02, 0.003, -0.004, 0))),
+    ("OPENCV_FISHEYE", (20, 21, 8, 6, 0.01, -0.02, 0.003, -0.004), ("fisheye", (0.01, -0.02, 0.003, -0.004))),
+    ("SIMPLE_RADIAL_FISHEYE", (20, 8, 6, 0.01), ("fisheye", (0.01, 0, 0, 0))),
+    ("RADIAL_FISHEYE", (20, 8, 6, 0.01, -0.02), ("fisheye", (0.01, -0.02, 0, 0))),
+])
+def test_each_camera_model_maps_to_its_pinhole_and_distortion(model, params, expected):
+    # COLMAP's parameter orders (src/colmap/sensor/models.h): f or fx, fy; cx, cy; then the model's coefficients
+    from senerf.data.colmap import ColmapCamera
+
+    k, d = ColmapCamera(model, 16, 12, tuple(map(float, params))).intrinsics_and_distortion()
+    fy = params[1] if model in ("OPENCV", "OPENCV_FISHEYE") else params[0]
+    assert k == Intrinsics(20.0, fy, 8.0, 6.0, 16, 12) and d == Distortion(*expected)
+
+
+def test_depth_bounds_worked_out_by_hand(tmp_path):
+    # camera 10 at the origin looking down +z sees points at depths 2 and 12, and (twice in one track) 7:
+    # 0.1th percentile of [2, 7, 12] = 2 + 0.002 * 5 = 2.01, 99.9th = 12 - 0.002 * 5 = 11.99
+    from senerf.data.colmap import _depth_bounds
+
+    c2w = np.eye(4)[None]
+    pts = (np.array([[0.0, 0.0, 2.0], [1.0, 0.0, 7.0], [0.0, -1.0, 12.0], [0.0, 0.0, -3.0]]),
+           (np.array([10, 10, 10, 10, 11, 10]), np.array([0, 1, 1, 2, 3, 3])))
+    np.testing.assert_allclose(_depth_bounds(c2w, [10], pts, tmp_path), [[2.01, 11.99]], rtol=1e-12)
+
+
+@pytest.mark.parametrize("azimuths, f, kind", [
+    (np.arange(0, 360, 30), 20.0, "object"),           # all around
+    (np.arange(0, 41, 10), 20.0, "forward_facing"),    # optical axes within 20 degrees of their mean
+    (np.arange(0, 91, 15), 20.0, "object"),            # within 45 degrees: an arc around an object
+    (np.arange(0, 21, 5), 3.0, "object"),              # a wide lens: corner rays 83 degrees off the mean
+])
+def test_the_kind_follows_the_spread_of_cameras_and_rays(tmp_path, azimuths, f, kind):
+    root, _ = ring_scene(tmp_path / "s", True, azimuths, model=("PINHOLE", (f, f, 8.0, 6.0)))
+    assert load_scene(root).kind == kind
+
+
+def test_the_kind_can_be_chosen(tmp_path, writers):
+    root, _ = ring_scene(tmp_path / "s", True, [0, 5, 10, 15, 20])
+    assert load_scene(root, kind="object").kind == "object"
+    root, _ = ring_scene(tmp_path / "o", True, np.arange(0, 360, 30), elevation=5.0)  # axes 85 degrees off down
+    with pytest.raises(InputError, match="kind: some rays look 1[0-9]{2} degrees away"):
+        load_scene(root, kind="forward_facing")
+    with pytest.raises(InputError, match="kind: only a COLMAP scene's kind can be chosen; this is a ngp scene"):
+        load_scene(writers.ngp(tmp_path / "n"), kind="object")
+
+
+def test_images_txt_needs_its_points_lines_and_skips_blank_lines_as_colmap(tmp_path):
+    root, _ = ring_scene(tmp_path / "s", False, np.arange(0, 360, 60))
+    path = root / "sparse" / "0" / "images.txt"
+    lines = path.read_text().splitlines()
+    path.write_text("\n".join([lines[0], "", "  "] + lines[1:]) + "\n")   # blank lines before an image line
+    assert load_scene(root).n_images == 6
+    path.write_text("\n".join(line for line in lines if line and not line[0].isdigit() or " v_" in line) + "\n")
+    assert "images.txt: line 3: expected image 15's 2D points" in _error(root)  # hand-written: no points lines
+
+
+def test_truncated_tracks_duplicates_and_undistortion_errors(tmp_path):
+    root, _ = ring_scene(tmp_path / "a", True, [0, 5, 10])
+    model = root / "sparse" / "0"
+    data = bytearray((model / "points3D.bin").read_bytes())
+    data[8 + 43:8 + 51] = struct.pack("<Q", 2 ** 63)   # the first point's track length
+    (model / "points3D.bin").write_bytes(bytes(data))
+    assert "points3D.bin: file ends inside point 1's track" in _error(root)
+    (model / "points3D.bin").write_bytes(bytes(data[:8 + 51 + 4]))
+    assert "points3D.bin: file ends inside point 1's track" in _error(root)
+
+    root, _ = ring_scene(tmp_path / "b", False, np.arange(0, 360, 60))
+    path = root / "sparse" / "0" / "images.txt"
+    path.write_text(path.read_text().replace("15 ", "14 ", 1))
+    assert "images.txt: image id 14 appears 2 times" in _error(root)
+    root, _ = ring_scene(tmp_path / "c", False, np.arange(0, 360, 60))
+    path = root / "sparse" / "0" / "images.txt"
+    path.write_text(path.read_text().replace("v_05.png", "v_04.png"))
+    assert "images.txt: image name 'v_04.png' appears 2 times" in _error(root)
+
+    root, _ = ring_scene(tmp_path / "d", False, np.arange(0, 360, 60),
+                         model=("OPENCV", (20.0, 20.0, 30.0, 6.0, -0.1, 0.0, 0.0, 0.0)))
+    assert "cameras.txt: camera 1: cannot undistort v_00.png: the principal point" in _error(root)
+
+
+def test_newer_colmap_camera_models_are_named_unsupported(tmp_path):
+    root, _ = ring_scene(tmp_path / "s", True, [0, 5, 10])
+    path = root / "sparse" / "0" / "cameras.bin"
+    data = bytearray(path.read_bytes())
+    data[12:16] = struct.pack("<i", 14)
+    path.write_bytes(bytes(data))
+    assert "cameras.bin: camera 1: camera model id 14 is not one senerf reads" in _error(root)
+    root, _ = ring_scene(tmp_path / "t", False, [0, 5, 10])
+    (root / "sparse" / "0" / "cameras.txt").write_text("1 SIMPLE_FISHEYE 16 12 20 8 6\n")
+    assert "cameras.txt: line 1: camera model SIMPLE_FISHEYE is not supported" in _error(root)
