@@ -57,7 +57,7 @@ def build_parser() -> argparse.ArgumentParser:
                              "run.json and checkpoints/. Run the same command again to resume. Exit status: 0 "
                              "done, 2 bad input (one line naming the file and field), 130 interrupted (Ctrl-C or "
                              "SIGTERM; rerun to resume), 1 internal error.")
-    p.add_argument("scene", nargs="?", help="scene folder (NeRF Synthetic / instant-ngp / LLFF)")
+    p.add_argument("scene", nargs="?", help="scene folder (NeRF Synthetic / instant-ngp / nerfstudio / LLFF / COLMAP)")
     g = p.add_argument_group("views")
     g.add_argument("--views", type=argument_type(parse_views),
                    help="training view indices, e.g. 0,1,51 (into the train split)")
