@@ -8,8 +8,10 @@ distortion undone at load (:mod:`senerf.data.undistort`) ``SIMPLE_RADIAL``, ``RA
 
 Folders: the model is the first of ``ROOT/sparse/0/``, ``ROOT/sparse/``, ``ROOT/`` holding ``cameras.bin`` or
 ``cameras.txt`` (binary preferred when both exist); images are ``ROOT/images/NAME`` for each registered
-image's ``NAME``.  Views are the registered images sorted by name (LLFF's order), at ``1 / downscale`` of
-their size.
+image's ``NAME``, or ``ROOT/images_N/NAME`` as LLFF and nerfstudio write downscaled copies: the folder is
+chosen as LLFF's (:func:`senerf.data.llff.llff_image_folder`: ``images_{downscale}`` when it exists, else the
+largest factor below), and its photos must be their cameras' size divided by ``N`` (to a pixel).  Views are
+the registered images sorted by name (LLFF's order), at ``1 / downscale`` of their cameras' size.
 
 Kind: **forward-facing** when every camera looks within :data:`FORWARD_FACING_DEG` degrees of the cameras'
 mean viewing direction and every ray, image corners included, within :data:`MAX_RAY_DEG` (an LLFF-style
@@ -38,7 +40,7 @@ import numpy as np
 from ..errors import InputError
 from ..geometry import Intrinsics
 from . import _io
-from .llff import LLFF_HOLDOUT, recenter_poses
+from .llff import LLFF_HOLDOUT, _folder_factor, llff_image_folder, recenter_poses
 from .scene import Scene
 from .undistort import Distortion, Undistorter
 
@@ -398,6 +400,8 @@ def load_colmap(root: Path, downscale: float = 1.0, bd_factor: float | None = 0.
         twice = sorted({v for v in values if values.count(v) > 1}, key=str)
         if twice:
             raise InputError(f"image {what} {twice[0]!r} appears {values.count(twice[0])} times", file=img_file)
+    image_folder = llff_image_folder(root, downscale)   # images/ or images_N/ (N <= downscale, exact preferred)
+    factor = _folder_factor(image_folder.name)
     entries, intrinsics, c2w = [], [], []
     for im in images:
         where = f"image {im.image_id} ({im.name})"
@@ -407,7 +411,7 @@ def load_colmap(root: Path, downscale: float = 1.0, bd_factor: float | None = 0.
             k, distortion = cameras[im.camera_id].intrinsics_and_distortion()
         except ValueError as exc:
             raise InputError(str(exc), file=cam_file, field=f"camera {im.camera_id}") from None
-        path = _io.resolve_inside(root / "images", im.name, img_file, where)
+        path = _io.resolve_inside(image_folder, im.name, img_file, where)
         entries.append(dict(path=path, field=where, file=img_file, k_photo=k, distortion=distortion,
                             distortion_file=cam_file, distortion_field=f"camera {im.camera_id}"))
         intrinsics.append(k)
@@ -417,14 +421,22 @@ def load_colmap(root: Path, downscale: float = 1.0, bd_factor: float | None = 0.
     c2w = np.stack(c2w)
 
     def photo_camera(e: dict, height: int, width: int) -> Intrinsics:
-        if (height, width) != e["k_photo"].size:
-            raise InputError(f"image is {width}x{height} but its camera is {e['k_photo'].width}x"
-                             f"{e['k_photo'].height}", file=e["file"], field=e["field"])
-        return e["k_photo"]
+        """The camera at the decoded size: the model's own, or scaled to an images_N/ photo."""
+        k = e["k_photo"]
+        if (height, width) == k.size:
+            return k
+        if factor > 1 and abs(height * factor - k.height) <= factor and abs(width * factor - k.width) <= factor:
+            return k.resized(width, height)
+        raise InputError(f"image is {width}x{height} but its camera is {k.width}x{k.height}"
+                         + (f" (/{factor} in {image_folder.name}: about {k.width / factor:.0f}x"
+                            f"{k.height / factor:.0f})" if factor > 1 else ""), file=e["file"], field=e["field"])
 
     undistorter = Undistorter(entries, photo_camera)
+    # an images_N/ folder at exactly the factor asked is used at its own size; any other is area-resized to
+    # the size the cameras give at that factor
+    size = None if factor == downscale else _io.target_size(intrinsics[0].height, intrinsics[0].width, downscale)
     rgb, alpha, (h0, w0) = _io.load_images([e["path"] for e in entries], [e["field"] for e in entries],
-                                           [e["file"] for e in entries], downscale, prepare=undistorter)
+                                           [e["file"] for e in entries], size=size, prepare=undistorter)
     h, w = rgb.shape[1:3]
     intr = tuple(undistorter.pinhole.get(k, photo_camera(e, h0, w0)).resized(w, h) for k, e in enumerate(entries))
     if kind is None:

@@ -297,3 +297,29 @@ def test_newer_colmap_camera_models_are_named_unsupported(tmp_path):
     root, _ = ring_scene(tmp_path / "t", False, [0, 5, 10])
     (root / "sparse" / "0" / "cameras.txt").write_text("1 SIMPLE_FISHEYE 16 12 20 8 6\n")
     assert "cameras.txt: line 1: camera model SIMPLE_FISHEYE is not supported" in _error(root)
+
+
+def test_downscaled_image_folders_are_used_as_llff_does(tmp_path):
+    # nerfstudio and LLFF write images_2/, images_4/ ... beside images/; the cameras stay at full size
+    import cv2
+
+    root, _ = ring_scene(tmp_path / "s", True, np.arange(0, 360, 60), model=("SIMPLE_RADIAL", (20.0, 8.0, 6.0, -0.05)))
+    (root / "images_2").mkdir()
+    for path in sorted((root / "images").iterdir()):
+        small = cv2.resize(iio.imread(path), (8, 6), interpolation=cv2.INTER_AREA)
+        iio.imwrite(root / "images_2" / path.name, small)
+    k_full = Intrinsics(20.0, 20.0, 8.0, 6.0, 16, 12)
+    d = Distortion("opencv", (-0.05, 0.0, 0.0, 0.0, 0.0))
+    half = load_scene(root, downscale=2)
+    assert {p.parent.name for p in half.image_paths} == {"images_2"} and half.size == (6, 8)
+    assert half.intrinsics == undistorted_intrinsics(k_full.resized(8, 6), d)   # undistorted at images_2's size
+    quarter = load_scene(root, downscale=4)   # the largest factor below 4: images_2, then area-resized
+    assert {p.parent.name for p in quarter.image_paths} == {"images_2"} and quarter.size == (3, 4)
+    assert quarter.intrinsics == undistorted_intrinsics(k_full.resized(8, 6), d).resized(4, 3)
+    full = load_scene(root, downscale=1.5)    # below 2: images/
+    assert {p.parent.name for p in full.image_paths} == {"images"} and full.size == (8, 11)
+    for path in (root / "images_2").iterdir():   # more than one pixel off what the cameras give at /2
+        iio.imwrite(path, np.zeros((4, 8, 3), np.uint8))
+    with pytest.raises(InputError, match=r"image 10 \(v_00.png\): image is 8x4 but its camera is 16x12 \(/2 in "
+                                         r"images_2: about 8x6\)"):
+        load_scene(root, downscale=2)
