@@ -323,3 +323,147 @@ def test_downscaled_image_folders_are_used_as_llff_does(tmp_path):
     with pytest.raises(InputError, match=r"image 10 \(v_00.png\): image is 8x4 but its camera is 16x12 \(/2 in "
                                          r"images_2: about 8x6\)"):
         load_scene(root, downscale=2)
+
+
+# --- added by the mutation audit -------------------------------------------------------------------------
+
+def _scale_quaternions(path, lines, factor) -> None:
+    out = []
+    for line in lines:
+        if " v_" in line:  # an image line: IMAGE_ID QW QX QY QZ ...
+            f = line.split()
+            f[1:5] = [repr(float(x) * factor) for x in f[1:5]]
+            line = " ".join(f)
+        out.append(line)
+    path.write_text("\n".join(out) + "\n")
+
+
+def test_quaternions_are_normalised_and_bad_ones_refused(tmp_path):
+    root, poses = ring_scene(tmp_path / "s", False, np.arange(0, 360, 60))
+    path = root / "sparse" / "0" / "images.txt"
+    lines = path.read_text().splitlines()
+    _scale_quaternions(path, lines, 1.5)  # COLMAP normalises; so does the reader
+    np.testing.assert_allclose(load_scene(root).c2w, poses, atol=1e-12)
+    for factor in (0.0, 0.4, 2.5):
+        _scale_quaternions(path, lines, factor)
+        assert "images.txt: line 2: bad pose" in _error(root)
+
+
+def test_binary_files_with_bytes_left_a_cut_name_or_a_non_utf8_name(tmp_path):
+    root, _ = ring_scene(tmp_path / "s", True, [0, 5, 10])
+    model = root / "sparse" / "0"
+    cams = (model / "cameras.bin").read_bytes()
+    (model / "cameras.bin").write_bytes(cams + b"\0")
+    assert "cameras.bin: 1 bytes left after the last record" in _error(root)
+    (model / "cameras.bin").write_bytes(cams)
+    data = (model / "images.bin").read_bytes()
+    (model / "images.bin").write_bytes(data[:data.rindex(b".png")])  # the last record (image 10) ends in its name
+    assert "images.bin: file ends inside image 10" in _error(root)
+    (model / "images.bin").write_bytes(data.replace(b"v_00.png", b"v_\xff0.png"))
+    assert "images.bin: image 10: image name is not UTF-8" in _error(root)
+
+
+def test_non_finite_numbers_in_binary_files_are_refused(tmp_path):
+    root, _ = ring_scene(tmp_path / "s", True, [0, 5, 10])
+    model = root / "sparse" / "0"
+    data = bytearray((model / "cameras.bin").read_bytes())
+    data[8 + 24:8 + 32] = struct.pack("<d", float("nan"))  # camera 1's fx
+    (model / "cameras.bin").write_bytes(bytes(data))
+    with pytest.raises(InputError, match="cameras.bin: camera 1: NaN or inf in the parameters"):
+        read_cameras(model / "cameras.bin")
+    data = bytearray((model / "points3D.bin").read_bytes())
+    data[8 + 8:8 + 16] = struct.pack("<d", float("inf"))  # point 1's x
+    (model / "points3D.bin").write_bytes(bytes(data))
+    with pytest.raises(InputError, match="points3D.bin: NaN or inf in the point coordinates"):
+        read_points3d(model / "points3D.bin")
+
+
+@pytest.mark.parametrize("stem, text, words", [
+    ("cameras", "1 PINHOLE 16\n", "line 1: expected CAMERA_ID MODEL WIDTH HEIGHT"),
+    ("cameras", "1 PINHOLE 0 12 20 20 8 6\n", "line 1: image size must be positive"),
+    ("images", "1 1 0 0 0 0 0 0 1\n\n", "line 1: expected IMAGE_ID QW QX QY QZ TX TY TZ CAMERA_ID NAME"),
+    ("images", "# c\n1 1 0 0 0 0 0 0 1 a.png\n1.5 2.5\n", "line 3: expected image 1's 2D points"),
+    ("images", "1 1 0 0 0 0 0 0 1 a.png\n1.5 2.5 x\n", "line 2: expected image 1's 2D points"),
+    ("points3D", "1 0 0 1 10 20 30 0.5 10 0 11\n", "line 1: expected POINT3D_ID X Y Z R G B ERROR TRACK"),
+    ("points3D", "1 0 0 1 10 20 30 0.5 10 0\n2 nan 0 1 10 20 30 0.5 10 0\n", "line 2: NaN or inf"),
+])
+def test_malformed_text_lines_name_the_line(tmp_path, stem, text, words):
+    path = tmp_path / f"{stem}.txt"
+    path.write_text(text)
+    reader = {"cameras": read_cameras, "images": read_images, "points3D": read_points3d}[stem]
+    with pytest.raises(InputError, match=f"{stem}.txt: {words}"):
+        reader(path)
+
+
+def test_image_names_with_spaces_are_kept_whole(tmp_path):
+    path = tmp_path / "images.txt"
+    path.write_text("1 1 0 0 0 0 0 0 1  my photo 01.png \n\n")
+    (im,) = read_images(path)
+    assert im.name == "my photo 01.png"
+
+
+def _move_model(root, to) -> None:
+    to.mkdir(parents=True, exist_ok=True)
+    for p in list((root / "sparse" / "0").iterdir()):
+        p.rename(to / p.name)
+
+
+def test_the_model_folder_is_sparse_0_then_sparse_then_the_scene_folder(tmp_path):
+    expected = Intrinsics(20.0, 21.0, 8.0, 6.0, 16, 12)
+    root, _ = ring_scene(tmp_path / "a", False, np.arange(0, 360, 60))
+    _move_model(root, root / "sparse")
+    assert load_scene(root).intrinsics == expected
+    root, _ = ring_scene(tmp_path / "b", False, np.arange(0, 360, 60))
+    _move_model(root, root)
+    assert load_scene(root).intrinsics == expected
+    root, _ = ring_scene(tmp_path / "c", False, np.arange(0, 360, 60))
+    for p in (root / "sparse" / "0").iterdir():  # another model beside the scene folder's images: not read
+        shutil.copy(p, root / p.name)
+    (root / "cameras.txt").write_text("1 PINHOLE 16 12 30 30 8 6\n")
+    assert load_scene(root).intrinsics == expected
+
+
+def test_binary_model_files_are_preferred_to_text(tmp_path):
+    root, _ = ring_scene(tmp_path / "s", True, np.arange(0, 360, 60))
+    (root / "sparse" / "0" / "cameras.txt").write_text("1 PINHOLE 16 12 30 30 8 6\n")
+    assert load_scene(root).intrinsics == Intrinsics(20.0, 21.0, 8.0, 6.0, 16, 12)
+
+
+def test_a_point_on_the_cameras_plane_is_not_in_front_of_it(tmp_path):
+    from senerf.data.colmap import _depth_bounds
+
+    c2w = np.eye(4)[None]
+    pts = (np.array([[0.0, 0.0, 2.0], [1.0, 0.0, 7.0], [0.0, -1.0, 12.0], [1.0, 1.0, 0.0]]),
+           (np.array([10, 10, 10, 10]), np.array([0, 1, 2, 3])))
+    np.testing.assert_allclose(_depth_bounds(c2w, [10], pts, tmp_path), [[2.01, 11.99]], rtol=1e-12)
+
+
+@pytest.mark.parametrize("azimuths, f, kind", [
+    (np.arange(0, 61, 15), 20.0, "forward_facing"),   # axes 28.1 degrees from their mean
+    (np.arange(0, 71, 10), 20.0, "object"),           # 32.7
+    (np.arange(0, 21, 5), 3.5, "forward_facing"),     # axes 9.4, corner rays 78.5
+])
+def test_the_kind_thresholds_are_30_and_80_degrees(tmp_path, azimuths, f, kind):
+    from senerf.data.colmap import view_spread
+
+    root, poses = ring_scene(tmp_path / "s", True, azimuths, model=("PINHOLE", (f, f, 8.0, 6.0)))
+    axis, ray, _ = view_spread(poses, [Intrinsics(f, f, 8.0, 6.0, 16, 12)] * len(poses))
+    assert abs(axis - 30.0) > 1.5 and abs(ray - 80.0) > 1.0
+    assert load_scene(root).kind == kind
+
+
+def test_a_chosen_forward_facing_kind_takes_rays_up_to_90_degrees(tmp_path):
+    root, _ = ring_scene(tmp_path / "a", True, np.arange(0, 41, 10), model=("PINHOLE", (3.0, 3.0, 8.0, 6.0)))
+    assert load_scene(root).kind == "object"  # corner rays 89.4 degrees off the mean
+    assert load_scene(root, kind="forward_facing").kind == "forward_facing"
+    root, _ = ring_scene(tmp_path / "b", True, np.arange(0, 56, 5), model=("PINHOLE", (4.0, 4.0, 8.0, 6.0)))
+    with pytest.raises(InputError, match="kind: some rays look 91 degrees away"):
+        load_scene(root, kind="forward_facing")
+    with pytest.raises(InputError, match="kind: expected 'object' or 'forward_facing', got 'forward'"):
+        load_scene(root, kind="forward")
+
+
+def test_images_must_have_their_cameras_size(tmp_path):
+    root, _ = ring_scene(tmp_path / "s", False, np.arange(0, 360, 60))
+    (root / "sparse" / "0" / "cameras.txt").write_text("1 PINHOLE 32 24 20 21 8 6\n")
+    assert "image is 16x12 but its camera is 32x24" in _error(root)

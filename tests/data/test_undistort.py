@@ -389,3 +389,143 @@ def test_negligible_distortion_is_nearly_the_identity():
     for k1 in (1e-300, -1e-12, 1e-12):
         k = undistorted_intrinsics(K_PHOTO, Distortion("opencv", (k1, 0.0, 0.0, 0.0, 0.0)))
         assert k.fx == pytest.approx(K_PHOTO.fx, rel=1e-9) and k.fy == pytest.approx(K_PHOTO.fy, rel=1e-9)
+
+
+# --- added by the mutation audit -------------------------------------------------------------------------
+
+@pytest.mark.parametrize("name", sorted(CASES))
+def test_the_focal_search_reaches_the_widest_view_to_1e9(name):
+    # the bisection is documented to ~1e-12 relative: a view wider by 1e-9 already leaves the photo
+    d = CASES[name]
+    k = undistorted_intrinsics(K_PHOTO, d)
+    wider = _scaled(k, 1.0 - 1e-9)
+    u, v = pixel_grid(wider)
+    xd, yd = distort((u - wider.cx) / wider.fx, (v - wider.cy) / wider.fy, d)
+    pu, pv = K_PHOTO.fx * xd + K_PHOTO.cx, K_PHOTO.fy * yd + K_PHOTO.cy
+    assert pu.min() < 0.5 or pv.min() < 0.5 or pu.max() > 199.5 or pv.max() > 159.5
+
+
+def test_a_focal_factor_up_to_64_is_searched_and_beyond_it_refused():
+    # k1 = -1000 folds at r = 1/sqrt(3000): the corners (r = 0.82 at the photo's focal) need a factor of ~45
+    d = Distortion("opencv", (-1000.0, 0.0, 0.0, 0.0, 0.0))
+    k = undistorted_intrinsics(K_PHOTO, d)
+    assert 32.0 < k.fx / K_PHOTO.fx < 64.0
+    corner = math.hypot(99.8 / k.fx, 79.9 / k.fy)  # the farthest pixel centre, (0.5, 159.5)
+    assert corner == pytest.approx(1.0 / math.sqrt(3000.0), rel=0.01)  # at the fold (probed by differences)
+    undistortion_maps(K_PHOTO, d, k)
+    with pytest.raises(DistortionError, match="no pinhole view up to 64 times"):
+        undistorted_intrinsics(K_PHOTO, Distortion("opencv", (-1e5, 0.0, 0.0, 0.0, 0.0)))
+
+
+def test_distortion_refuses_too_many_coefficients():
+    with pytest.raises(ValueError, match="5 finite numbers"):
+        Distortion("opencv", (0.1, 0.0, 0.0, 0.0, 0.0, 0.0))
+    with pytest.raises(ValueError, match="4 finite numbers"):
+        Distortion("fisheye", (0.1, 0.0, 0.0, 0.0, 0.0))
+
+
+def test_maps_a_third_of_a_pixel_outside_the_photo_are_refused():
+    k = undistorted_intrinsics(K_PHOTO, CASES["barrel"])
+    with pytest.raises(DistortionError, match="outside the photo"):
+        undistortion_maps(K_PHOTO, CASES["barrel"], _scaled(k, 0.995))  # its top row samples 0.34 px above
+
+
+def test_a_fold_inside_the_view_away_from_its_border_is_found():
+    # r (1 + k1 r^2 + k2 r^4 + k3 r^6) turns back and forward again: a ring folds inside a view whose border
+    # samples unfolded photo; only the grid inside the view sees it
+    d = Distortion("opencv", (-1.4, 0.12, 0.012, 0.072, 2.26))
+    k = undistorted_intrinsics(K_PHOTO, d)
+    undistortion_maps(K_PHOTO, d, k)  # no fold in the view chosen
+    with pytest.raises(DistortionError, match="folds"):
+        undistortion_maps(K_PHOTO, d, _scaled(k, 0.75))
+
+
+def test_principal_point_on_the_half_pixel_edge():
+    pincushion = CASES["pincushion"]
+    with pytest.raises(DistortionError, match="principal point"):
+        undistorted_intrinsics(Intrinsics(160.0, 150.0, 0.4, 79.6, 200, 160), pincushion)
+    with pytest.raises(DistortionError, match="principal point"):
+        undistorted_intrinsics(Intrinsics(160.0, 150.0, 100.3, 159.6, 200, 160), pincushion)
+    undistorted_intrinsics(Intrinsics(160.0, 150.0, 0.5, 79.6, 200, 160), pincushion)  # on the centre: accepted
+
+
+def test_hemispherical_fisheye_with_unequal_focals_gets_the_80_degree_view():
+    k = Intrinsics(30.0, 24.0, 50.0, 50.0, 100, 100)
+    pin = undistorted_intrinsics(k, Distortion("fisheye", (0.0, 0.0, 0.0, 0.0)))
+    assert pin.fx / pin.fy == pytest.approx(1.25, rel=1e-12)
+    corner = math.hypot(49.5 / pin.fx, 49.5 / pin.fy)
+    assert math.degrees(math.atan(corner)) == pytest.approx(80.0, abs=1e-9)
+
+
+@pytest.mark.parametrize("size", [(1, 7), (7, 1)])
+def test_a_fold_along_a_one_pixel_wide_image_is_found(size):
+    # k1 = -0.9: r_d = r (1 - 0.9 r^2) at r = 0.3, 0.6, 0.9 is 0.276, 0.406, 0.244: the last pixel folds back
+    h, w = size
+    k = Intrinsics(3.0 / 0.9, 3.0 / 0.9, w / 2, h / 2, w, h)
+    with pytest.raises(DistortionError, match="folds"):
+        undistortion_maps(k, Distortion("opencv", (-0.9, 0.0, 0.0, 0.0, 0.0)), k)
+
+
+def test_a_fold_between_the_last_two_rows_of_a_513_row_image_is_found():
+    # rows are checked in chunks of 512 cells; the last pair of rows of a 513-row image is a chunk's edge.
+    # k1 = -0.9 folds at r = 1/sqrt(2.7) = 486.9 px at f = 800: between rows 511 (511.5) and 512 (512.5) with cy 24.6
+    k = Intrinsics(800.0, 800.0, 2.0, 24.6, 4, 513)
+    d = Distortion("opencv", (-0.9, 0.0, 0.0, 0.0, 0.0))
+    beyond = Intrinsics(800.0, 800.0, 2.0, 25.6, 4, 513)
+    undistortion_maps(beyond, d, beyond)  # the fold a pixel further down, past the last row: fine
+    with pytest.raises(DistortionError, match="folds"):
+        undistortion_maps(k, d, k)
+
+
+def test_undistortion_maps_refuse_a_pinhole_of_another_size():
+    with pytest.raises(ValueError, match="sizes differ"):
+        undistortion_maps(K_PHOTO, CASES["barrel"], Intrinsics(160.0, 150.0, 100.3, 79.6, 100, 80))
+
+
+def test_fully_transparent_pixels_come_out_black_not_nan():
+    d = CASES["barrel"]
+    photo = np.zeros((160, 200, 4), np.float32)
+    photo[:, :, :3] = 0.7
+    photo[:, 100:, 3] = 1.0  # left half fully transparent
+    with np.errstate(all="ignore"):
+        out = undistort_image(photo, undistortion_maps(K_PHOTO, d, undistorted_intrinsics(K_PHOTO, d)))
+    assert np.all(np.isfinite(out))
+    clear = out[..., 3] == 0.0
+    assert clear.any() and np.all(out[..., :3][clear] == 0.0)
+    np.testing.assert_allclose(out[..., :3][out[..., 3] > 0], 0.7, rtol=1e-5)
+
+
+@pytest.mark.parametrize("extra, field, words", [
+    ({"is_fisheye": 1}, "is_fisheye", "true or false"),  # JSON's 1 is not true
+    ({"camera_model": "OPENCV_FISHEYE", "is_fisheye": True, "cx": 250.0}, "camera_model", "principal point"),
+    ({"camera_model": "OPENCV_FISHEYE", "k2": 0.01, "cx": 250.0}, "k2", "principal point"),
+    ({"k1": 0.0, "k2": -0.1, "p2": 0.01, "cx": 250.0}, "k2", "principal point"),  # the first non-zero one
+])
+def test_distortion_errors_name_the_field_that_set_it(tmp_path, writers, extra, field, words):
+    from senerf.data import load_scene
+    from senerf.errors import InputError
+    root = writers.ngp(tmp_path / "n", meta_extra=dict(_photo_meta(), **extra), image=_photo_writer(CASES["barrel"]))
+    with pytest.raises(InputError, match=rf"transforms\.json: {field}: .*{words}"):
+        load_scene(root)
+
+
+def test_file_level_null_counts_as_absent(tmp_path, writers):
+    from senerf.data import load_scene
+    d = CASES["barrel"]
+    meta = dict(_photo_meta(d), k3=None, k4=None, p1=None, camera_model=None, is_fisheye=None)
+    scene = load_scene(writers.ngp(tmp_path / "n", meta_extra=meta, image=_photo_writer(d)))
+    assert scene.intrinsics == undistorted_intrinsics(K_PHOTO, d)
+
+
+@pytest.mark.parametrize("camera_model, coeffs, expected", [
+    ("PINHOLE", {}, None),
+    ("SIMPLE_PINHOLE", {}, None),
+    ("SIMPLE_RADIAL", {"k1": -0.1}, Distortion("opencv", (-0.1, 0.0, 0.0, 0.0, 0.0))),
+    ("SIMPLE_RADIAL_FISHEYE", {"k1": 0.04}, Distortion("fisheye", (0.04, 0.0, 0.0, 0.0))),
+    ("RADIAL_FISHEYE", {"k1": 0.04, "k2": -0.01}, Distortion("fisheye", (0.04, -0.01, 0.0, 0.0))),
+])
+def test_every_named_camera_model_is_read(tmp_path, writers, camera_model, coeffs, expected):
+    from senerf.data import load_scene
+    meta = dict(_photo_meta(), camera_model=camera_model, **coeffs)
+    scene = load_scene(writers.ngp(tmp_path / "n", meta_extra=meta, image=_photo_writer(CASES["barrel"])))
+    assert scene.intrinsics == (K_PHOTO if expected is None else undistorted_intrinsics(K_PHOTO, expected))
