@@ -40,7 +40,7 @@ import numpy as np
 from ..errors import InputError
 from ..geometry import Intrinsics
 from . import _io
-from .llff import LLFF_HOLDOUT, _folder_factor, llff_image_folder, recenter_poses
+from .llff import LLFF_HOLDOUT, _folder_factor, llff_image_folder, normalise_forward_facing
 from .scene import Scene
 from .undistort import Distortion, Undistorter
 
@@ -439,11 +439,12 @@ def load_colmap(root: Path, downscale: float = 1.0, bd_factor: float | None = 0.
                                            [e["file"] for e in entries], size=size, prepare=undistorter)
     h, w = rgb.shape[1:3]
     intr = tuple(undistorter.pinhole.get(k, photo_camera(e, h0, w0)).resized(w, h) for k, e in enumerate(entries))
+    _, ray_deg, forward_facing = view_spread(c2w, intr)
     if kind is None:
-        kind = "forward_facing" if view_spread(c2w, intr)[2] else "object"
-    elif kind == "forward_facing" and view_spread(c2w, intr)[1] >= 90.0:
-        raise InputError(f"some rays look {view_spread(c2w, intr)[1]:.0f} degrees away from the cameras' mean "
-                         "direction; a forward-facing (NDC) fit needs every ray within 90", field="kind")
+        kind = "forward_facing" if forward_facing else "object"
+    elif kind == "forward_facing" and ray_deg >= 90.0:
+        raise InputError(f"some rays look {ray_deg:.0f} degrees away from the cameras' mean direction; a "
+                         "forward-facing (NDC) fit needs every ray within 90", field="kind")
     idx = np.arange(len(images))
     splits = {"train": idx[idx % LLFF_HOLDOUT != 0], "val": idx[:0], "test": idx[idx % LLFF_HOLDOUT == 0]}
     common = dict(name=root.resolve().name, root=root, rgb=rgb, alpha=alpha, intrinsics=intr[0],
@@ -455,10 +456,5 @@ def load_colmap(root: Path, downscale: float = 1.0, bd_factor: float | None = 0.
                          f"images use {len(set(intr))} different cameras", file=cam_file)
     bounds = _depth_bounds(c2w, [im.image_id for im in images], read_points3d(_model_file(folder, "points3D")),
                            folder)
-    if bd_factor is not None:
-        scale = 1.0 / (bounds.min() * float(bd_factor))
-        c2w[:, :3, 3] *= scale
-        bounds *= scale
-    if recenter:
-        c2w = recenter_poses(c2w)
+    c2w, bounds = normalise_forward_facing(c2w, bounds, bd_factor, recenter)
     return Scene(c2w=c2w, splits=splits, kind="forward_facing", near=float(bounds.min()), far=float(bounds.max()), **common)

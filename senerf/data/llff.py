@@ -40,7 +40,7 @@ from ..geometry import Intrinsics, invert_rigid
 from . import _io
 from .scene import Scene
 
-__all__ = ["load_llff", "llff_image_folder", "recenter_poses", "LLFF_HOLDOUT"]
+__all__ = ["load_llff", "llff_image_folder", "recenter_poses", "normalise_forward_facing", "LLFF_HOLDOUT"]
 
 #: Every ``LLFF_HOLDOUT``-th image (index % 8 == 0) is a test view in the LLFF protocol.
 LLFF_HOLDOUT = 8
@@ -96,6 +96,28 @@ def recenter_poses(c2w: np.ndarray) -> np.ndarray:
     avg = np.eye(4)
     avg[:3, 0], avg[:3, 1], avg[:3, 2], avg[:3, 3] = x, y, z, center
     return invert_rigid(avg) @ c2w
+
+
+def normalise_forward_facing(c2w: np.ndarray, bounds: np.ndarray, bd_factor: float | None = 0.75,
+                             recenter: bool = True) -> tuple:
+    """LLFF's normalisation (module docstring) of ``c2w (N, 4, 4)`` OpenCV poses and their ``bounds (N, 2)``
+    near/far: scaled so that the smallest near becomes ``1 / bd_factor`` (``None``: not scaled), then
+    recentred (:func:`recenter_poses`).  Returns new ``(c2w, bounds)``.
+
+    Raises:
+        InputError: ``bd_factor`` not a positive finite number (field ``bd_factor``).
+    """
+    c2w, bounds = np.array(c2w, np.float64), np.array(bounds, np.float64)
+    if bd_factor is not None:
+        bd = float(bd_factor)
+        if not np.isfinite(bd) or bd <= 0:
+            raise InputError(f"must be positive, got {bd_factor!r}", field="bd_factor")
+        scale = 1.0 / (bounds.min() * bd)
+        c2w[:, :3, 3] *= scale
+        bounds *= scale
+    if recenter:
+        c2w = recenter_poses(c2w)
+    return c2w, bounds
 
 
 def _folder_factor(name: str) -> int | None:
@@ -170,15 +192,7 @@ def load_llff(root: Path, downscale: float = 1.0, bd_factor: float | None = 0.75
         if not 0 < bounds[i, 0] <= bounds[i, 1]:
             raise InputError(f"expected 0 < near <= far, got {bounds[i].tolist()}", file=file, field=f"row {i} bounds")
     c2w = _opencv_poses(arr, file)
-    if bd_factor is not None:
-        bd = float(bd_factor)
-        if not np.isfinite(bd) or bd <= 0:
-            raise InputError(f"must be positive, got {bd_factor!r}", field="bd_factor")
-        scale = 1.0 / (bounds.min() * bd)
-        c2w[:, :3, 3] *= scale
-        bounds *= scale
-    if recenter:
-        c2w = recenter_poses(c2w)
+    c2w, bounds = normalise_forward_facing(c2w, bounds, bd_factor, recenter)
 
     folder = llff_image_folder(root, downscale)
     paths = _list_images(folder)

@@ -467,3 +467,17 @@ def test_images_must_have_their_cameras_size(tmp_path):
     root, _ = ring_scene(tmp_path / "s", False, np.arange(0, 360, 60))
     (root / "sparse" / "0" / "cameras.txt").write_text("1 PINHOLE 32 24 20 21 8 6\n")
     assert "image is 16x12 but its camera is 32x24" in _error(root)
+
+
+def test_forward_facing_normalisation_is_llffs_own(tmp_path):
+    # one normalisation for both loaders: its bd_factor check applies to COLMAP folders too
+    from senerf.data import load_colmap
+
+    root, _ = ring_scene(tmp_path / "s", True, [0, 5, 10, 15, 20])
+    for bad in (0.0, -1.0, float("nan")):
+        with pytest.raises(InputError, match="bd_factor: must be positive"):
+            load_colmap(root, bd_factor=bad)
+    raw, scaled = load_colmap(root, bd_factor=None, recenter=False), load_colmap(root, recenter=False)
+    factor = 1.0 / (0.75 * raw.near)   # the smallest near becomes 1 / 0.75
+    np.testing.assert_allclose(scaled.c2w[:, :3, 3], raw.c2w[:, :3, 3] * factor, rtol=1e-12)
+    assert (scaled.near, scaled.far) == pytest.approx((raw.near * factor, raw.far * factor), rel=1e-12)
