@@ -18,8 +18,8 @@
   ``"camera_model": "OPENCV_FISHEYE"`` or ``"is_fisheye": true`` (instant-ngp).  Each distorted photo is
   resampled at load time onto a pinhole camera at the same pose, with the photo's size and principal point
   and a focal length chosen so that no pixel falls outside the photo (:mod:`senerf.data.undistort`); the
-  scene's intrinsics are that camera's.  ``camera_model`` must be one of :data:`PERSPECTIVE_MODELS` or
-  :data:`FISHEYE_MODELS` (any other is refused, never read as a pinhole), and agree with ``is_fisheye``;
+  scene's intrinsics are that camera's.  ``camera_model`` must be one of
+  :data:`senerf.data.undistort.PERSPECTIVE_MODELS` or :data:`~senerf.data.undistort.FISHEYE_MODELS` (any other is refused, never read as a pinhole), and agree with ``is_fisheye``;
   ``k4`` (an ``r^8`` term) on a perspective camera is refused, as nerfstudio does.  A coefficient written as a
   string (``"-0.05"``, older nerfstudio converters) is read as the number.  A frame's value, ``null``
   excepted, wins over the file's, key by key.
@@ -44,15 +44,12 @@ from ..errors import InputError
 from ..geometry import Intrinsics, opengl_to_opencv
 from . import _io
 from .scene import Scene
-from .undistort import Distortion, Undistorter
+from .undistort import FISHEYE_MODELS, PERSPECTIVE_MODELS, Distortion, Undistorter
 
-__all__ = ["load_blender", "load_ngp", "BLENDER_SPLITS", "PERSPECTIVE_MODELS", "FISHEYE_MODELS"]
+__all__ = ["load_blender", "load_ngp", "BLENDER_SPLITS"]
 
 BLENDER_SPLITS = ("train", "val", "test")
 _DISTORTION_KEYS = ("k1", "k2", "k3", "k4", "p1", "p2")
-#: ``camera_model`` values understood (COLMAP's names, as nerfstudio writes them; upper case, any case read).
-PERSPECTIVE_MODELS = ("SIMPLE_PINHOLE", "PINHOLE", "SIMPLE_RADIAL", "RADIAL", "OPENCV")
-FISHEYE_MODELS = ("OPENCV_FISHEYE", "SIMPLE_RADIAL_FISHEYE", "RADIAL_FISHEYE")
 
 def _image_path(root: Path, frame: dict, file: Path, field: str) -> Path:
     rel = _io.get_field(frame, "file_path", file, field)

@@ -42,7 +42,7 @@ from ..geometry import Intrinsics
 from . import _io
 from .llff import LLFF_HOLDOUT, _folder_factor, llff_image_folder, normalise_forward_facing
 from .scene import Scene
-from .undistort import Distortion, Undistorter
+from .undistort import FISHEYE_MODELS, PERSPECTIVE_MODELS, Distortion, Undistorter
 
 __all__ = ["load_colmap", "colmap_model_folder", "view_spread", "read_cameras", "read_images", "read_points3d",
            "ColmapCamera", "ColmapImage", "FORWARD_FACING_DEG", "MAX_RAY_DEG", "CAMERA_MODELS"]
@@ -59,8 +59,7 @@ CAMERA_MODELS = {
     9: ("RADIAL_FISHEYE", 5), 10: ("THIN_PRISM_FISHEYE", 12),
 }
 _N_PARAMS = {name: n for name, n in CAMERA_MODELS.values()}
-_SUPPORTED = ("SIMPLE_PINHOLE, PINHOLE, SIMPLE_RADIAL, RADIAL, OPENCV, OPENCV_FISHEYE, SIMPLE_RADIAL_FISHEYE, "
-              "RADIAL_FISHEYE")
+_SUPPORTED = ", ".join(PERSPECTIVE_MODELS + FISHEYE_MODELS)
 
 
 @dataclass(frozen=True)

@@ -39,7 +39,12 @@ from ..errors import InputError
 from ..geometry import Intrinsics
 
 __all__ = ["Distortion", "distort_pixels", "undistorted_intrinsics", "undistortion_maps", "undistort_image",
-           "DistortionError", "Undistorter"]
+           "DistortionError", "Undistorter", "PERSPECTIVE_MODELS", "FISHEYE_MODELS"]
+
+#: COLMAP's camera model names that senerf reads (the JSON formats' ``camera_model`` and COLMAP's own):
+#: pinholes and the OpenCV radial-tangential family, then the fisheyes (OpenCV's equidistant family).
+PERSPECTIVE_MODELS = ("SIMPLE_PINHOLE", "PINHOLE", "SIMPLE_RADIAL", "RADIAL", "OPENCV")
+FISHEYE_MODELS = ("OPENCV_FISHEYE", "SIMPLE_RADIAL_FISHEYE", "RADIAL_FISHEYE")
 
 _N_COEFFS = {"opencv": 5, "fisheye": 4}
 # The pinhole focal factor is searched within [1/_SCALE_LIMIT, _SCALE_LIMIT] of the photo's, and no wider than
