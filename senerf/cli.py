@@ -359,6 +359,14 @@ def _run(args, argv) -> int:
     print(f"{PROG}: scene {scene.name} ({fmt}, {scene.size[1]}x{scene.size[0]}), protocol {protocol}: "
           f"{len(train_idx)} training views {list(map(int, train_idx))[:12]}{' ...' if len(train_idx) > 12 else ''}, "
           f"{len(test_idx)} test views")
+    if fmt == "colmap":   # the kind was decided from the cameras (or chosen): say which, and why
+        from senerf.data.colmap import FORWARD_FACING_DEG, MAX_RAY_DEG, view_spread
+
+        axis, ray, _ = view_spread(scene.c2w, scene.intrinsics_all)
+        why = ("--scene-kind" if kind is not None else
+               f"limits {FORWARD_FACING_DEG:g} and {MAX_RAY_DEG:g} for forward-facing; --scene-kind to choose")
+        print(f"{PROG}: fitted as {scene.kind.replace('_', '-')}: camera axes within {axis:.1f} degrees of their "
+              f"mean direction, rays within {ray:.1f} ({why})")
     model = choose_model(scene, train_idx, {**PRESETS[args.preset]["model"], **_model_overrides(args)})
     _check_model_fits(model, device)
     overrides = {k: v for k, v in (("steps", args.steps), ("batch_rays", args.batch_rays)) if v is not None}

@@ -445,7 +445,12 @@ def test_scene_kind_is_chosen_for_colmap_scenes_recorded_and_rendered_with(tmp_p
     assert main([str(tiny_scene), "--out", str(tmp_path / "o"), "--scene-kind", "object", *TINY]) == 2
     assert "--scene-kind: applies to COLMAP scenes only" in _one_error_line(capsys)
     out = tmp_path / "fit"
+    capsys.readouterr()
+    assert main([str(root), "--out", str(tmp_path / "auto"), *SMALL]) == 0
+    assert ("senerf-fit: fitted as object: camera axes within 85.0 degrees of their mean direction, rays within "
+            in capsys.readouterr().out)
     assert main([str(root), "--out", str(out), "--scene-kind", "object", *SMALL]) == 0
+    assert "fitted as object: camera axes within 85.0 degrees" in capsys.readouterr().out
     record = json.loads((out / "run.json").read_text())
     assert record["format"] == "colmap" and record["scene_kind"] == "object" and record["protocol"] == "llff"
     assert render([str(out), "--path", "test", "--quiet"]) == 0
