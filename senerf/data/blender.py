@@ -194,8 +194,7 @@ def _build(root: Path, entries: list, downscale: float, splits: dict) -> Scene:
         prepare=undistorter,
     )
     h, w = rgb.shape[1:3]
-    intr = tuple((undistorter.pinhole[k] if k in undistorter.pinhole else _intrinsics(e["params"], h0, w0, e["file"]))
-                 .resized(w, h) for k, e in enumerate(entries))
+    intr = tuple(k.resized(w, h) for k in undistorter.cameras(h0, w0))
     c2w = opengl_to_opencv(np.stack([e["c2w_gl"] for e in entries]))
     return Scene(
         name=root.resolve().name,  # "." (a relative marker file or the current folder) has no name

@@ -125,26 +125,29 @@ class _Reader:
 
     def __init__(self, path: Path) -> None:
         self.path = path
-        self.data = path.read_bytes()
+        self.data = _read(path, binary=True)
         self.pos = 0
+
+    def _ends_inside(self, what: str) -> InputError:
+        return InputError(f"file ends inside {what} (truncated or not a COLMAP model)", file=self.path)
 
     def take(self, fmt: str, what: str):
         size = struct.calcsize("<" + fmt)
         if self.pos + size > len(self.data):
-            raise InputError(f"file ends inside {what} (truncated or not a COLMAP model)", file=self.path)
+            raise self._ends_inside(what)
         out = struct.unpack_from("<" + fmt, self.data, self.pos)
         self.pos += size
         return out
 
     def skip(self, size: int, what: str) -> None:
         if size < 0 or self.pos + size > len(self.data):
-            raise InputError(f"file ends inside {what} (truncated or not a COLMAP model)", file=self.path)
+            raise self._ends_inside(what)
         self.pos += size
 
     def name(self, what: str) -> str:
         end = self.data.find(b"\0", self.pos)
         if end < 0:
-            raise InputError(f"file ends inside {what} (truncated or not a COLMAP model)", file=self.path)
+            raise self._ends_inside(what)
         raw, self.pos = self.data[self.pos:end], end + 1
         try:
             return raw.decode("utf-8")
@@ -157,13 +160,17 @@ class _Reader:
                              file=self.path)
 
 
-def _text_lines(path: Path):
-    """``(line number, fields)`` of the non-comment, non-empty lines of a text model file."""
+def _read(path: Path, binary: bool = False):
+    """A model file's bytes, or its text (UTF-8); ``InputError`` when it cannot be read."""
     try:
-        text = path.read_text(encoding="utf-8")
+        return path.read_bytes() if binary else path.read_text(encoding="utf-8")
     except (OSError, UnicodeDecodeError) as exc:
         raise InputError(f"cannot read ({exc})", file=path) from None
-    for number, line in enumerate(text.splitlines(), 1):
+
+
+def _text_lines(path: Path):
+    """``(line number, fields)`` of the non-comment, non-empty lines of a text model file."""
+    for number, line in enumerate(_read(path).splitlines(), 1):
         line = line.strip()
         if line and not line.startswith("#"):
             yield number, line.split()
@@ -234,10 +241,7 @@ def read_images(path: Path) -> list:
             out.append(_image(rec[0], rec[1:5], rec[5:8], rec[8], name, path, f"image {rec[0]}"))
         r.done()
         return out
-    try:
-        text = path.read_text(encoding="utf-8")
-    except (OSError, UnicodeDecodeError) as exc:
-        raise InputError(f"cannot read ({exc})", file=path) from None
+    text = _read(path)
     # as COLMAP reads it: blank and comment lines are skipped to find an image line; the line after it holds
     # the image's 2D points (X Y POINT3D_ID triples), empty when it has none, and must be there
     lines = text.splitlines()
@@ -401,7 +405,7 @@ def load_colmap(root: Path, downscale: float = 1.0, bd_factor: float | None = 0.
             raise InputError(f"image {what} {twice[0]!r} appears {values.count(twice[0])} times", file=img_file)
     image_folder = llff_image_folder(root, downscale)   # images/ or images_N/ (N <= downscale, exact preferred)
     factor = _folder_factor(image_folder.name)
-    entries, intrinsics, c2w = [], [], []
+    entries, c2w = [], []
     for im in images:
         where = f"image {im.image_id} ({im.name})"
         if im.camera_id not in cameras:
@@ -413,7 +417,6 @@ def load_colmap(root: Path, downscale: float = 1.0, bd_factor: float | None = 0.
         path = _io.resolve_inside(image_folder, im.name, img_file, where)
         entries.append(dict(path=path, field=where, file=img_file, k_photo=k, distortion=distortion,
                             distortion_file=cam_file, distortion_field=f"camera {im.camera_id}"))
-        intrinsics.append(k)
         pose = im.c2w()
         _io.check_rigid(pose, img_file, where)
         c2w.append(pose)
@@ -433,11 +436,12 @@ def load_colmap(root: Path, downscale: float = 1.0, bd_factor: float | None = 0.
     undistorter = Undistorter(entries, photo_camera)
     # an images_N/ folder at exactly the factor asked is used at its own size; any other is area-resized to
     # the size the cameras give at that factor
-    size = None if factor == downscale else _io.target_size(intrinsics[0].height, intrinsics[0].width, downscale)
+    size = None if factor == downscale else _io.target_size(entries[0]["k_photo"].height, entries[0]["k_photo"].width,
+                                                              downscale)
     rgb, alpha, (h0, w0) = _io.load_images([e["path"] for e in entries], [e["field"] for e in entries],
                                            [e["file"] for e in entries], size=size, prepare=undistorter)
     h, w = rgb.shape[1:3]
-    intr = tuple(undistorter.pinhole.get(k, photo_camera(e, h0, w0)).resized(w, h) for k, e in enumerate(entries))
+    intr = tuple(k.resized(w, h) for k in undistorter.cameras(h0, w0))
     _, ray_deg, forward_facing = view_spread(c2w, intr)
     if kind is None:
         kind = "forward_facing" if forward_facing else "object"

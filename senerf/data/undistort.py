@@ -304,7 +304,8 @@ class Undistorter:
         photo_camera: ``photo_camera(entry, height, width) -> Intrinsics``, the photo's camera at its decoded
             size.
 
-    After loading, ``pinhole`` maps each undistorted view's index to its pinhole camera (decoded size).  The
+    After loading, :meth:`cameras` gives every view's camera (``pinhole`` maps each undistorted view's index
+    to its pinhole camera, decoded size).  The
     sampling maps of the last few cameras are kept, so frames sharing a camera compute them once.
     """
 
@@ -329,6 +330,12 @@ class Undistorter:
         while len(self._maps) > _MAPS_KEPT:
             self._maps.popitem(last=False)
         return entry
+
+    def cameras(self, height: int, width: int) -> list:
+        """After loading: each view's camera at the decoded size ``(height, width)``, the pinhole one where the
+        photo was undistorted, its own elsewhere."""
+        return [self.pinhole[k] if k in self.pinhole else self.photo_camera(e, height, width)
+                for k, e in enumerate(self.entries)]
 
     def __call__(self, k: int, img: np.ndarray) -> np.ndarray:
         e = self.entries[k]
