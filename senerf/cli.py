@@ -212,9 +212,35 @@ _RUN_KEYS = frozenset({"scene_dir", "format", "protocol", "train", "model"})
 _OUTPUT_NAMES = ("checkpoints", "metrics.json", "summary.png", "render", _RUN_FILE)
 
 
+def _scene_files(scene, train_idx, test_idx, st_cfg) -> dict:
+    """:func:`senerf.data.scene_file_digests` of the files the run reads: the poses and cameras, the
+    training and test views' images, and with oracle reliability every view's (the held-out ones label it)."""
+    import numpy as np
+
+    from senerf.data import scene_file_digests
+
+    oracle = st_cfg is not None and st_cfg.reliability == "oracle"
+    return scene_file_digests(scene, None if oracle else np.union1d(train_idx, test_idx))
+
+
+def _files_changed(old: dict, identity: dict) -> str:
+    """One line saying which of the scene's files changed since ``old`` was recorded, or ``''`` (also when
+    ``old`` predates the record: a run.json written before senerf-fit hashed the files cannot tell)."""
+    from senerf.data.scene import changed_files
+    from senerf.train import differences_text
+
+    then, now = old.get("scene_files"), identity.get("scene_files")
+    if not isinstance(then, dict) or not isinstance(now, dict):
+        return ""
+    lines = changed_files(then, now)
+    return f"scene files differ: {differences_text(lines)}" if lines else ""
+
+
 def _comparable(identity: dict) -> dict:
     """``identity`` with the self-training overrides that equal their defaults left out (an override given
-    explicitly at its default value, or recorded as None, names the same run as one not given)."""
+    explicitly at its default value, or recorded as None, names the same run as one not given), and without
+    the scene files' digests (:func:`_files_changed` compares those)."""
+    identity = {k: v for k, v in identity.items() if k != "scene_files"}
     defaults = {"empty_opacity": EMPTY_OPACITY_DEFAULT, "pseudo_range_deg": PSEUDO_RANGE_DEFAULT,
                 "pseudo_range_step_deg": PSEUDO_RANGE_STEP_DEFAULT, "n_pseudo_per_input": PSEUDO_VIEWS_DEFAULT,
                 "batch_empty": BATCH_EMPTY_DEFAULT, "student_grid": STUDENT_GRID_DEFAULT}
@@ -251,10 +277,11 @@ def _prepare_out(out: Path, identity: dict, overwrite: bool) -> None:
         if not (isinstance(old, dict) and _RUN_KEYS <= old.keys()):
             raise InputError(f"holds a {_RUN_FILE} that senerf-fit did not write; choose another --out "
                              f"(--overwrite never deletes files it did not make)", file=out)
-        if _comparable(old) != _comparable(identity):
+        changed = _files_changed(old, identity)
+        if _comparable(old) != _comparable(identity) or changed:
             if not overwrite:
                 diffs = settings_differences(_comparable(old), _comparable(identity))
-                what = differences_text(diffs) if diffs else "settings differ"
+                what = differences_text(diffs) if diffs else (changed or "settings differ")
                 raise InputError(f"holds a different run ({what}); use --overwrite or another --out", file=out)
             for target in _own_outputs(out):
                 if target.is_dir():
@@ -405,6 +432,7 @@ def _run(args, argv) -> int:
     # empty_opacity is always part of the fingerprint (None when not given), as before the other overrides
     identity["selftrain_flags"] = {**_selftrain_flags(args), "empty_opacity": args.empty_opacity,
                                    **_selftrain_overrides(args)}
+    identity["scene_files"] = _scene_files(scene, train_idx, test_idx, st_cfg)
     _prepare_out(out, identity, args.overwrite)
     print(f"{PROG}: writing to {out}")
 

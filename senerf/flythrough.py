@@ -149,6 +149,9 @@ def load_fitted_run(folder, iteration: int | None = None, device: str = "cpu") -
         InputError: not a senerf-fit folder, a bad ``run.json`` / ``metrics.json`` value, no finished
             iteration (or not ``iteration``), a missing or foreign checkpoint, a scene folder that no longer
             matches the run.
+
+    Warns:
+        UserWarning: the scene's files no longer hold what the fit read (``run.json``'s ``scene_files``).
     """
     from senerf.data import load_scene
 
@@ -182,8 +185,26 @@ def load_fitted_run(folder, iteration: int | None = None, device: str = "cpu") -
                          f"was fitted at {resolution!r}"[:200], file=scene_dir)
     train_idx = _views(metrics, "train_views", metrics_path, scene.n_images)
     test_idx = _views(metrics, "test_views", metrics_path, scene.n_images)
+    _warn_if_files_changed(run.get("scene_files"), scene, run_path)
     field, occupancy = _load_field(folder, model, k, seed, steps, device)
     return FittedRun(folder, scene, model, field, occupancy, k, train_idx, test_idx, seed, steps, tuple(done))
+
+
+def _warn_if_files_changed(recorded, scene, run_path: Path) -> None:
+    """Warn when the scene's files no longer hold what the fit read (``run.json``'s ``scene_files``; runs
+    made before senerf-fit recorded them are not checked): the cameras then come from the files as they are
+    now, which may not be the frame the field was fitted in."""
+    from senerf.data import scene_file_digests
+    from senerf.data.scene import changed_files
+
+    if not isinstance(recorded, dict):
+        return
+    now = scene_file_digests(scene)
+    lines = changed_files(recorded, {name: digest for name, digest in now.items() if name in recorded})
+    if lines:
+        more = f" and {len(lines) - 1} more" if len(lines) > 1 else ""
+        warnings.warn(f"{run_path}: the scene's files changed since the fit ({lines[0]}{more}); its cameras and "
+                      "photos are read as they are now", stacklevel=3)
 
 
 def _load_field(folder: Path, model, k: int, seed: int, steps: int, device: str):

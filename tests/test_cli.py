@@ -126,6 +126,45 @@ def test_tiny_end_to_end_fit_resume_and_overwrite(tiny_scene, tmp_path, capsys):
     assert json.loads((out / "metrics.json").read_text())["config"]["train"]["seed"] == 1
 
 
+def test_a_scene_whose_files_changed_is_not_resumed(tiny_scene, tmp_path, capsys):
+    # Before, run.json held the scene's path, not what its files held: a photo or pose edited between a fit and
+    # its resume was trained on beside the finished iterations' old one (so at ce8cdd5).
+    import shutil
+
+    scene = shutil.copytree(tiny_scene, tmp_path / "scene")
+    out = tmp_path / "run"
+    argv = [str(scene), "--out", str(out), *TINY]
+    assert main(argv) == 0
+    run_json = json.loads((out / "run.json").read_text())
+    assert sorted(run_json["scene_files"]) == [*(f"test/r_{k}.png" for k in range(2)),
+                                              "train/r_0.png", "train/r_1.png", "train/r_2.png", "train/r_3.png",
+                                              "train/r_4.png", "transforms_test.json", "transforms_train.json"]
+    before = {p: p.read_bytes() for p in out.rglob("*") if p.is_file()}
+    photo, poses = scene / "train" / "r_3.png", scene / "transforms_train.json"
+    for edited, name in ((photo, "train/r_3.png"), (poses, "transforms_train.json")):
+        original = edited.read_bytes()
+        edited.write_bytes(original + b"\0" if edited.suffix == ".png" else original.replace(b"{", b"{ ", 1))
+        capsys.readouterr()
+        assert main(argv) == 2
+        assert f"holds a different run (scene files differ: {name} changed); use --overwrite" in _one_error_line(capsys)
+        assert {p: p.read_bytes() for p in out.rglob("*") if p.is_file()} == before   # nothing touched
+        edited.write_bytes(original)
+    assert main(argv) == 0   # the files as they were: the same run, resumed
+    # a run.json from before the files were recorded cannot tell, so it resumes (and records them from now on)
+    (out / "run.json").write_text(json.dumps({k: v for k, v in run_json.items() if k != "scene_files"}))
+    photo.write_bytes(photo.read_bytes() + b"\0")
+    assert main(argv) == 0
+    assert json.loads((out / "run.json").read_text())["scene_files"]["train/r_3.png"] != run_json["scene_files"][
+        "train/r_3.png"]
+    # with --overwrite a changed scene starts over
+    (out / "metrics.json").write_bytes(before[out / "metrics.json"])
+    poses.write_bytes(poses.read_bytes().replace(b"{", b"{ ", 1))
+    assert main([*argv, "--overwrite"]) == 0
+    from senerf.data import load_scene, scene_file_digests
+
+    assert json.loads((out / "run.json").read_text())["scene_files"] == scene_file_digests(load_scene(scene))
+
+
 def test_overwrite_never_deletes_what_senerf_fit_did_not_make(tiny_scene, tmp_path, capsys):
     # A user's folder: no run.json of ours, but a metrics.json and a checkpoints folder of their own.
     # Before, a foreign run.json counted as "a different run" and --overwrite deleted checkpoints/ (so at 71d19d4).

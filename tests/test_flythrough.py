@@ -590,3 +590,24 @@ def test_what_a_killed_render_left_is_tidied_and_the_earlier_output_restored(tmp
     (tmp_path / f".orbit_iter1.old-{dead}").mkdir()
     _check_out(out, overwrite=True)
     assert (tmp_path / f".orbit_iter1.old-{dead}").exists()
+
+
+def test_a_scene_whose_files_changed_since_the_fit_is_rendered_with_a_warning(runs, tmp_path, capsys):
+    # Before, senerf-render read the scene as it is now without a word, so a pose edited after the fit put the
+    # path in another frame than the field's (so at ce8cdd5).
+    run_dir = tmp_path / "run"
+    shutil.copytree(runs.base, run_dir, ignore=shutil.ignore_patterns("render"))
+    assert main([str(run_dir), "--path", "test", "--out", str(tmp_path / "same"), "--quiet"]) == 0
+    assert "warning" not in capsys.readouterr().err   # the files the fit read, unchanged
+    recorded = json.loads((run_dir / "run.json").read_text())["scene_files"]
+    assert "test/r_1.png" in recorded and "transforms_train.json" in recorded
+    _edit_json(run_dir / "run.json", lambda run: run["scene_files"].update({"test/r_1.png": "0" * 16}))
+    assert main([str(run_dir), "--path", "test", "--out", str(tmp_path / "changed"), "--quiet"]) == 0
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == [f"senerf-render: warning: {run_dir / 'run.json'}: the scene's files changed since the fit "
+                   "(test/r_1.png changed); its cameras and photos are read as they are now"]
+    assert (tmp_path / "changed" / "rgb.gif").is_file()
+    # a run.json from before the files were recorded is not checked
+    _edit_json(run_dir / "run.json", lambda run: run.pop("scene_files"))
+    assert main([str(run_dir), "--path", "test", "--out", str(tmp_path / "old"), "--quiet"]) == 0
+    assert "warning" not in capsys.readouterr().err

@@ -209,6 +209,7 @@ def _build(root: Path, entries: list, downscale: float, splits: dict) -> Scene:
         near=None,
         far=None,
         image_paths=tuple(e["path"] for e in entries),
+        source_files=tuple(e["file"] for e in entries),   # each view's camera, once per file (Scene)
     )
 
 

@@ -451,13 +451,15 @@ def load_colmap(root: Path, downscale: float = 1.0, bd_factor: float | None = 0.
     idx = np.arange(len(images))
     splits = {"train": idx[idx % LLFF_HOLDOUT != 0], "val": idx[:0], "test": idx[idx % LLFF_HOLDOUT == 0]}
     common = dict(name=root.resolve().name, root=root, rgb=rgb, alpha=alpha, intrinsics=intr[0],
-                  intrinsics_all=intr, image_paths=tuple(e["path"] for e in entries))
+                  intrinsics_all=intr, image_paths=tuple(e["path"] for e in entries),
+                  source_files=(cam_file, img_file))
     if kind == "object":
         return Scene(c2w=c2w, splits=splits, kind="object", near=None, far=None, **common)
     if len(set(intr)) > 1:
         raise InputError("a forward-facing capture is fitted in one NDC frustum, built from one camera; these "
                          f"images use {len(set(intr))} different cameras", file=cam_file)
-    bounds = _depth_bounds(c2w, [im.image_id for im in images], read_points3d(_model_file(folder, "points3D")),
-                           folder)
+    points_file = _model_file(folder, "points3D")
+    bounds = _depth_bounds(c2w, [im.image_id for im in images], read_points3d(points_file), folder)
     c2w, bounds = normalise_forward_facing(c2w, bounds, bd_factor, recenter)
+    common["source_files"] += (points_file,)   # its depth bounds set the scene's scale
     return Scene(c2w=c2w, splits=splits, kind="forward_facing", near=float(bounds.min()), far=float(bounds.max()), **common)

@@ -223,4 +223,5 @@ def load_llff(root: Path, downscale: float = 1.0, bd_factor: float | None = 0.75
         near=float(bounds.min()),
         far=float(bounds.max()),
         image_paths=tuple(paths),
+        source_files=(file,),
     )

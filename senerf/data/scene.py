@@ -10,6 +10,7 @@ Convention:
 
 from __future__ import annotations
 
+import hashlib
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -18,7 +19,7 @@ import numpy as np
 from ..errors import InputError
 from ..geometry import Intrinsics
 
-__all__ = ["Scene", "SPLIT_NAMES", "as_background"]
+__all__ = ["Scene", "SPLIT_NAMES", "as_background", "scene_file_digests", "changed_files"]
 
 #: The split names every :class:`Scene` carries (possibly empty).
 SPLIT_NAMES = ("train", "val", "test")
@@ -57,6 +58,8 @@ class Scene:
         kind: ``'object'`` (360 degree, e.g. Blender) or ``'forward_facing'`` (LLFF).
         near, far: scene depth bounds in world units where the format gives them (LLFF), else ``None``.
         image_paths: the image file of each view, length ``n``.
+        source_files: the other files the loader read (poses, cameras, splits: ``transforms_*.json``,
+            ``poses_bounds.npy``, COLMAP's model files), each once; :func:`scene_file_digests` hashes them.
         background: ``(r, g, b)`` that ``rgb`` was composited onto at load time, or ``None`` (straight).
 
     Raises:
@@ -76,6 +79,7 @@ class Scene:
     far: float | None = None
     image_paths: tuple = ()
     background: tuple | None = None
+    source_files: tuple = ()
 
     def __post_init__(self) -> None:
         rgb, c2w = self.rgb, self.c2w
@@ -103,6 +107,7 @@ class Scene:
         object.__setattr__(self, "splits", splits)
         object.__setattr__(self, "intrinsics_all", tuple(self.intrinsics_all))
         object.__setattr__(self, "image_paths", tuple(Path(p) for p in self.image_paths))
+        object.__setattr__(self, "source_files", tuple(dict.fromkeys(Path(p) for p in self.source_files)))
 
     @property
     def n_images(self) -> int:
@@ -149,3 +154,56 @@ class Scene:
             return rgb.copy()
         a = alpha[..., None]
         return (rgb * a + bg * (1.0 - a)).astype(np.float32)
+
+
+def scene_file_digests(scene: Scene, views=None) -> dict:
+    """What the scene's files held when read: ``{name: sha256 hex digest, first 16 characters}``.
+
+    The files are ``scene.source_files`` (poses, cameras) and the image files of ``views``; a name is the
+    path relative to ``scene.root`` (``/``-separated), or the absolute path of a file outside it.  Two
+    loads of unchanged files give equal dicts on any machine (bytes, not decoded pixels, are hashed), so a
+    run can tell whether its scene changed between a fit and a resume.
+
+    Args:
+        scene: a loaded :class:`Scene`.
+        views: int view indices ``(m,)`` whose images count; ``None`` for all.
+
+    Raises:
+        InputError: a file can no longer be read (named).
+
+    Example:
+        >>> digests = scene_file_digests(load_scene("lego", downscale=4), views=[0, 1])  # doctest: +SKIP
+        >>> sorted(digests)[:2]                                                           # doctest: +SKIP
+        ['train/r_0.png', 'train/r_1.png']
+    """
+    idx = range(scene.n_images) if views is None else np.asarray(views, dtype=np.int64).reshape(-1)
+    paths = list(scene.source_files) + [scene.image_paths[int(i)] for i in idx]
+    root = Path(scene.root).resolve()
+    out = {}
+    for path in dict.fromkeys(paths):
+        resolved = Path(path).resolve()
+        name = resolved.relative_to(root).as_posix() if resolved.is_relative_to(root) else str(resolved)
+        try:
+            with open(resolved, "rb") as f:
+                out[name] = hashlib.file_digest(f, "sha256").hexdigest()[:16]
+        except OSError as exc:
+            raise InputError(f"cannot be read any more ({exc.strerror or exc})", file=path) from None
+    return dict(sorted(out.items()))
+
+
+def changed_files(then: dict, now: dict) -> list[str]:
+    """How two :func:`scene_file_digests` records differ, one line per file, sorted by name.
+
+    Example:
+        >>> changed_files({"a.png": "01", "b.json": "02"}, {"a.png": "ff", "c.json": "03"})
+        ['a.png changed', 'b.json was read then, not now', 'c.json is read now, not then']
+    """
+    lines = []
+    for name in sorted(set(then) | set(now)):
+        if name not in now:
+            lines.append(f"{name} was read then, not now")
+        elif name not in then:
+            lines.append(f"{name} is read now, not then")
+        elif then[name] != now[name]:
+            lines.append(f"{name} changed")
+    return lines

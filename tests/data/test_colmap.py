@@ -93,6 +93,8 @@ def test_object_capture_poses_and_cameras_read_back(tmp_path, binary):
     assert scene.intrinsics == Intrinsics(20.0, 21.0, 8.0, 6.0, 16, 12)
     assert [p.name for p in scene.image_paths] == [f"v_{k:02d}.png" for k in range(12)]
     assert scene.splits["test"].tolist() == [0, 8] and len(scene.splits["train"]) == 10
+    ext = "bin" if binary else "txt"   # the files scene_file_digests hashes (points3D: forward-facing only)
+    assert scene.source_files == tuple(root / "sparse" / "0" / f"{stem}.{ext}" for stem in ("cameras", "images"))
 
 
 def test_binary_and_text_models_read_the_same(tmp_path):
@@ -115,6 +117,8 @@ def test_forward_facing_capture_is_normalised_as_llff(tmp_path):
     assert np.abs(scene.c2w[:, :3, 3].mean(0)).max() < 1e-12
     # bd_factor: the nearest bound becomes 1 / 0.75
     assert scene.near == pytest.approx(1 / 0.75)
+    # its depth bounds, and so its scale, come from points3D too
+    assert scene.source_files == tuple(root / "sparse" / "0" / f"{s}.bin" for s in ("cameras", "images", "points3D"))
 
 
 def test_lens_distortion_is_undone(tmp_path):

@@ -18,6 +18,7 @@ def test_llff_columns_to_opencv_identity(tmp_path, writers):
         np.testing.assert_allclose(scene.c2w[k, :3, 3], (0.1 * k, 0.0, 0.0))
     assert scene.kind == "forward_facing"
     assert (scene.near, scene.far) == (2.0, 10.0)
+    assert scene.source_files == (root / "poses_bounds.npy",)   # what scene_file_digests hashes
 
 
 def test_llff_rotated_camera_projects_consistently(tmp_path, writers):

@@ -89,3 +89,43 @@ def test_frozen():
 def test_senerf_data_never_imports_torch():
     code = "import sys, senerf.data; assert 'torch' not in sys.modules, 'torch imported'"
     subprocess.run([sys.executable, "-c", code], check=True)
+
+
+# --- scene_file_digests / changed_files: what a run checks before it resumes -------------------------------
+
+def test_scene_file_digests_are_sha256_of_the_bytes_named_relative_to_the_root(tmp_path):
+    from senerf.data import scene_file_digests
+
+    # golden: FIPS 180-2's first SHA-256 example, sha256("abc") = ba7816bf 8f01cfea 414140de ...
+    (tmp_path / "poses.json").write_bytes(b"abc")
+    (tmp_path / "img").mkdir()
+    (tmp_path / "img" / "a.png").write_bytes(b"")   # sha256 of no bytes: e3b0c442 98fc1c14 ...
+    outside = tmp_path.parent / f"{tmp_path.name}-outside.png"
+    outside.write_bytes(b"abc")
+    k = Intrinsics(2.0, 2.0, 1.0, 1.0, 2, 2)
+    s = _scene(root=tmp_path, rgb=np.zeros((2, 2, 2, 3), np.float32), alpha=None, intrinsics_all=(k, k),
+               c2w=np.broadcast_to(np.eye(4), (2, 4, 4)).copy(), image_paths=(tmp_path / "img" / "a.png", outside),
+               source_files=(tmp_path / "poses.json", tmp_path / "poses.json"))
+    assert s.source_files == (tmp_path / "poses.json",)   # each file once
+    assert scene_file_digests(s) == {"img/a.png": "e3b0c44298fc1c14", "poses.json": "ba7816bf8f01cfea",
+                                     str(outside.resolve()): "ba7816bf8f01cfea"}
+    assert scene_file_digests(s, views=[0]) == {"img/a.png": "e3b0c44298fc1c14", "poses.json": "ba7816bf8f01cfea"}
+    (tmp_path / "img" / "a.png").unlink()
+    with pytest.raises(InputError, match=r"a\.png: cannot be read any more"):
+        scene_file_digests(s, views=[0])
+
+
+def test_changed_files_names_every_difference():
+    from senerf.data.scene import changed_files
+
+    assert changed_files({"a": "1", "b": "2"}, {"a": "1", "b": "2"}) == []
+    assert changed_files({"a": "1", "b": "2"}, {"b": "3", "c": "4"}) == [
+        "a was read then, not now", "b changed", "c is read now, not then"]
+
+
+def test_each_loader_records_the_files_it_read_its_cameras_from(tmp_path):
+    from senerf.data import load_scene
+    from senerf.procedural.export import export_blender_scene
+
+    root = export_blender_scene(tmp_path / "s", n_train=3, n_val=1, n_test=2, width=8, height=8, seed=0)
+    assert load_scene(root).source_files == tuple(root / f"transforms_{s}.json" for s in ("train", "val", "test"))
