@@ -11,6 +11,7 @@ Convention:
 from __future__ import annotations
 
 import hashlib
+import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -178,13 +179,13 @@ def scene_file_digests(scene: Scene, views=None) -> dict:
     """
     idx = range(scene.n_images) if views is None else np.asarray(views, dtype=np.int64).reshape(-1)
     paths = list(scene.source_files) + [scene.image_paths[int(i)] for i in idx]
-    root = Path(scene.root).resolve()
+    root = Path(os.path.abspath(scene.root))   # lexically: a symlinked photo keeps its name in the folder
     out = {}
     for path in dict.fromkeys(paths):
-        resolved = Path(path).resolve()
-        name = resolved.relative_to(root).as_posix() if resolved.is_relative_to(root) else str(resolved)
+        full = Path(os.path.abspath(path))
+        name = full.relative_to(root).as_posix() if full.is_relative_to(root) else str(full)
         try:
-            with open(resolved, "rb") as f:
+            with open(full, "rb") as f:
                 out[name] = hashlib.file_digest(f, "sha256").hexdigest()[:16]
         except OSError as exc:
             raise InputError(f"cannot be read any more ({exc.strerror or exc})", file=path) from None

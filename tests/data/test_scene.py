@@ -110,6 +110,10 @@ def test_scene_file_digests_are_sha256_of_the_bytes_named_relative_to_the_root(t
     assert scene_file_digests(s) == {"img/a.png": "e3b0c44298fc1c14", "poses.json": "ba7816bf8f01cfea",
                                      str(outside.resolve()): "ba7816bf8f01cfea"}
     assert scene_file_digests(s, views=[0]) == {"img/a.png": "e3b0c44298fc1c14", "poses.json": "ba7816bf8f01cfea"}
+    # a photo linked in from elsewhere is named where the scene has it, and hashed as what it points to
+    (tmp_path / "img" / "a.png").unlink()
+    (tmp_path / "img" / "a.png").symlink_to(outside)
+    assert scene_file_digests(s, views=[0])["img/a.png"] == "ba7816bf8f01cfea"
     (tmp_path / "img" / "a.png").unlink()
     with pytest.raises(InputError, match=r"a\.png: cannot be read any more"):
         scene_file_digests(s, views=[0])
