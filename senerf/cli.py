@@ -205,6 +205,31 @@ def _check_model_fits(model, device: str = "cpu") -> None:
                              f"{gpu / 2**30:.0f} GiB", field="--resolution")
 
 
+#: A COLMAP object capture with at least this share of its 3D points outside the fitted box gets a warning.
+POINTS_OUTSIDE_WARN = 0.25
+
+
+def _warn_points_outside(scene_dir, model) -> None:
+    """Warn when much of a COLMAP object capture's sparse point cloud lies outside the box the field is fitted
+    in: a background around the object (a 360-degree capture of a room or a garden) is not modelled, so the
+    fit paints it onto the box's faces and scores poorly.  Captures without a points3D file are not checked."""
+    import numpy as np
+
+    from senerf.data.colmap import sparse_points
+
+    xyz = sparse_points(scene_dir)
+    if xyz is None or len(xyz) == 0:
+        return
+    box = np.asarray(model.aabb, dtype=np.float64)
+    share = float(np.mean(~np.all((xyz >= box[0]) & (xyz <= box[1]), axis=1)))
+    if share >= POINTS_OUTSIDE_WARN:
+        centre, half = box.mean(axis=0), float(box[1, 0] - box[0, 0]) / 2
+        print(f"{PROG}: warning: {share:.0%} of the capture's {len(xyz)} 3D points lie outside the box the field is "
+              f"fitted in (centre ({centre[0]:.3g}, {centre[1]:.3g}, {centre[2]:.3g}), half size {half:.3g}): senerf "
+              "fits a bounded object, so a background around it is not modelled and ends up painted on the box; "
+              "photos with the background masked out (RGBA) avoid this", file=sys.stderr)
+
+
 #: Keys every run.json that senerf-fit writes has: how a folder is recognised as one of its runs.
 _RUN_KEYS = frozenset({"scene_dir", "format", "protocol", "train", "model"})
 #: What senerf-fit writes into its folder (and ``--overwrite`` removes from a folder of another run);
@@ -396,6 +421,8 @@ def _run(args, argv) -> int:
               f"mean direction, rays within {ray:.1f} ({why})")
     model = choose_model(scene, train_idx, {**PRESETS[args.preset]["model"], **_model_overrides(args)})
     _check_model_fits(model, device)
+    if fmt == "colmap" and scene.kind == "object":
+        _warn_points_outside(scene_dir, model)
     overrides = {k: v for k, v in (("steps", args.steps), ("batch_rays", args.batch_rays)) if v is not None}
     train_cfg = preset_train_config(args.preset, seed=args.seed, device=device, **overrides)
 

@@ -496,3 +496,28 @@ def test_scene_kind_is_chosen_for_colmap_scenes_recorded_and_rendered_with(tmp_p
     capsys.readouterr()
     assert main([str(root), "--out", str(out), *SMALL]) == 2   # resuming without the choice is another run
     assert "scene_kind" in _one_error_line(capsys)
+
+
+def test_a_colmap_object_capture_with_a_background_is_warned_about(tmp_path, capsys):
+    # Before, a capture whose sparse points mostly lie beyond the fitted box (a background all around) was
+    # fitted without a word, its background baked onto the box (so at 737942e).
+    import importlib.util
+    from pathlib import Path
+
+    import numpy as np
+
+    spec = importlib.util.spec_from_file_location("colmap_writers", Path(__file__).parent / "data" / "test_colmap.py")
+    writers = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(writers)
+    # 40 points at the centre, inside the box (half size ~1.7 around the origin), and 60 at radius 20
+    root, _ = writers.ring_scene(tmp_path / "bg", True, np.arange(0, 360, 30), far_points=60)
+    assert main([str(root), "--out", str(tmp_path / "o1"), *SMALL]) == 0
+    err = capsys.readouterr().err
+    assert "senerf-fit: warning: 60% of the capture's 100 3D points lie outside the box the field is fitted in" in err
+    assert len(err.strip().splitlines()) == 1 and "RGBA" in err
+    (root / "sparse" / "0" / "points3D.bin").unlink()   # an object capture may come without points: no check
+    assert main([str(root), "--out", str(tmp_path / "o2"), *SMALL]) == 0
+    assert "warning" not in capsys.readouterr().err
+    root, _ = writers.ring_scene(tmp_path / "plain", False, np.arange(0, 360, 30), far_points=10)  # 20 %
+    assert main([str(root), "--out", str(tmp_path / "o3"), *SMALL]) == 0
+    assert "warning" not in capsys.readouterr().err

@@ -321,6 +321,24 @@ def colmap_model_folder(root: Path) -> Path | None:
     return None
 
 
+def sparse_points(root: Path) -> np.ndarray | None:
+    """COLMAP's 3D points of the scene folder ``root``: ``(P, 3)`` float64 in COLMAP's world frame (an
+    object capture's frame; a forward-facing scene is normalised after loading), or ``None`` when the model
+    has no ``points3D`` file (an object capture needs none).
+
+    Raises:
+        InputError: no COLMAP model in ``root``, or a malformed ``points3D`` file.
+    """
+    folder = colmap_model_folder(Path(root))
+    if folder is None:
+        raise InputError("no COLMAP model (sparse/0/cameras.bin or cameras.txt)", file=root)
+    try:
+        path = _model_file(folder, "points3D")
+    except InputError:
+        return None
+    return read_points3d(path)[0]
+
+
 def _model_file(folder: Path, stem: str) -> Path:
     for suffix in (".bin", ".txt"):
         if (folder / (stem + suffix)).is_file():

@@ -69,13 +69,18 @@ def write_model(folder, cameras: dict, images: list, points: list, binary: bool)
     (folder / "points3D.txt").write_text("\n".join(lines) + "\n")
 
 
-def ring_scene(root, binary: bool, azimuths, model=("PINHOLE", (20.0, 21.0, 8.0, 6.0)), elevation=20.0):
-    """Cameras on a ring looking at the origin, tiny images, points around the origin seen by all."""
+def ring_scene(root, binary: bool, azimuths, model=("PINHOLE", (20.0, 21.0, 8.0, 6.0)), elevation=20.0,
+               far_points: int = 0):
+    """Cameras on a ring looking at the origin, tiny images, 40 points around the origin seen by all (and
+    ``far_points`` more on a sphere of radius 20 around it, a background)."""
     poses = [pose_from_spherical(az, elevation, 4.0) for az in azimuths]
     names = [f"v_{k:02d}.png" for k in range(len(poses))]
     images = [(10 + k, pose, 1, name) for k, (pose, name) in enumerate(zip(poses, names))]
     rng = np.random.default_rng(0)
     points = [(tuple(rng.uniform(-0.5, 0.5, 3)), [10 + k for k in range(len(poses))]) for _ in range(40)]
+    for _ in range(far_points):
+        direction = rng.normal(size=3)
+        points.append((tuple(20.0 * direction / np.linalg.norm(direction)), [10]))
     write_model(root / "sparse" / "0", {1: (model[0], 16, 12, model[1])}, images[::-1], points, binary)
     (root / "images").mkdir(parents=True, exist_ok=True)
     for k, name in enumerate(names):
@@ -485,3 +490,17 @@ def test_forward_facing_normalisation_is_llffs_own(tmp_path):
     factor = 1.0 / (0.75 * raw.near)   # the smallest near becomes 1 / 0.75
     np.testing.assert_allclose(scaled.c2w[:, :3, 3], raw.c2w[:, :3, 3] * factor, rtol=1e-12)
     assert (scaled.near, scaled.far) == pytest.approx((raw.near * factor, raw.far * factor), rel=1e-12)
+
+
+def test_sparse_points_are_the_model_s_points_in_colmap_s_frame(tmp_path):
+    from senerf.data.colmap import sparse_points
+
+    root, _ = ring_scene(tmp_path / "s", False, [0, 90, 180], far_points=2)
+    xyz = sparse_points(root)
+    assert xyz.shape == (42, 3)
+    np.testing.assert_allclose(np.linalg.norm(xyz[40:], axis=1), 20.0, rtol=1e-12)   # as written, not normalised
+    assert np.abs(xyz[:40]).max() <= 0.5
+    (root / "sparse" / "0" / "points3D.txt").unlink()
+    assert sparse_points(root) is None
+    with pytest.raises(InputError, match="no COLMAP model"):
+        sparse_points(tmp_path)
