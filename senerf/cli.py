@@ -63,14 +63,18 @@ def build_parser() -> argparse.ArgumentParser:
                    help="training view indices, e.g. 0,1,51 (into the train split)")
     g.add_argument("--n-views", type=int_flag("--n-views"), help="number of views (llff, random8)")
     g.add_argument("--protocol", choices=_CLI_PROTOCOLS,
-                   help="few-shot protocol (default: 'views' with --views, else llff for forward-facing and COLMAP scenes, extreme for the others)")
+                   help="few-shot protocol (default: 'views' with --views, extreme for the NeRF Synthetic scenes, "
+                        "else llff: every 8th image tests, 3 views spread over the rest train)")
     g.add_argument("--scene-kind", choices=("object", "forward-facing"),
                    help="COLMAP scenes: fit as an object or as a forward-facing (LLFF, NDC) capture instead of "
                         "the kind the cameras' spread suggests")
     g.add_argument("--downscale", type=float_flag("--downscale", 1.0),
                    help="image downscale factor (default 1; LLFF: 8, relative to full resolution)")
     t = p.add_argument_group("training")
-    t.add_argument("--preset", choices=("fast", "balanced"), default="balanced")
+    t.add_argument("--preset", choices=("fast", "balanced"), default="balanced",
+                   help="fast: 600 steps x 1024 rays, 1 self-training iteration (~100 s on lego Extreme at "
+                        "100x100, 2 CPU cores); balanced (default): 1000 x 4096, 3 iterations (~6-8 min, "
+                        "+0.5 dB; BENCHMARKS.md)")
     t.add_argument("--steps", type=int_flag("--steps"), help="training steps per iteration (overrides preset)")
     t.add_argument("--batch-rays", type=int_flag("--batch-rays"), help="rays per step (overrides preset)")
     t.add_argument("--iterations", type=int_flag("--iterations", allow_zero=True), default=None,
@@ -205,6 +209,19 @@ def _check_model_fits(model, device: str = "cpu") -> None:
                              f"{gpu / 2**30:.0f} GiB", field="--resolution")
 
 
+def _default_protocol(scene, fmt: str, views) -> str:
+    """``views`` when views are given; ``extreme`` for a NeRF Synthetic scene (a Blender-style object scene
+    named in :data:`senerf.data.EXTREME_VIEWS`, with a test split); else ``llff`` (every 8th image held out
+    for testing, 3 training views spread over the rest), which every scene folder supports: a capture of
+    one's own has no published views."""
+    from senerf.data import EXTREME_VIEWS
+
+    if views is not None:
+        return "views"
+    benchmark = scene.name.lower() in EXTREME_VIEWS and len(scene.splits["test"]) > 0
+    return "extreme" if scene.kind == "object" and fmt != "colmap" and benchmark else "llff"
+
+
 #: A COLMAP object capture with at least this share of its 3D points outside the fitted box gets a warning.
 POINTS_OUTSIDE_WARN = 0.25
 
@@ -308,11 +325,14 @@ def _prepare_out(out: Path, identity: dict, overwrite: bool) -> None:
                 diffs = settings_differences(_comparable(old), _comparable(identity))
                 what = differences_text(diffs) if diffs else (changed or "settings differ")
                 raise InputError(f"holds a different run ({what}); use --overwrite or another --out", file=out)
+            removed = []
             for target in _own_outputs(out):
+                removed.append(target.name + ("/" if target.is_dir() else ""))
                 if target.is_dir():
                     shutil.rmtree(target)
                 else:
                     target.unlink()
+            print(f"{PROG}: --overwrite: removed the earlier run's {', '.join(removed)} from {out}")
     elif out.exists() and any(out.iterdir()):
         clash = _own_outputs(out)
         if clash:
@@ -333,6 +353,7 @@ def _run_baseline(scene, train_idx, test_idx, model, train_cfg, out: Path, argv,
     A folder whose metrics.json already holds iteration 0 (this run's baseline, finished, perhaps followed
     by self-training iterations) is left as it is: its rows are returned, nothing is retrained or dropped.
     """
+    from senerf.data import view_names
     from senerf.train import RayBatchSource, atomic_write_text, build_field, evaluate, train_field
 
     done = _finished_metrics(out)
@@ -350,6 +371,7 @@ def _run_baseline(scene, train_idx, test_idx, model, train_cfg, out: Path, argv,
     h, w = scene.intrinsics.size
     metrics = {"senerf_version": __version__, "command": list(argv), "config": config, "scene": scene.name,
                "train_views": [int(i) for i in train_idx], "test_views": [int(i) for i in test_idx],
+               "train_images": view_names(scene, train_idx), "test_images": view_names(scene, test_idx),
                "resolution": [int(h), int(w)],
                "iterations": [dict(iteration=0, psnr=ev["psnr"], ssim=ev["ssim"], lpips=ev["lpips"], avg=ev["avg"],
                                    reliable_fraction=None, seconds=seconds, per_view=ev["per_view"])],
@@ -390,7 +412,7 @@ def _run(args, argv) -> int:
     if not args.scene:
         raise InputError("a SCENE_DIR is required (or --demo)", field="SCENE_DIR")
 
-    from senerf.data import detect_format, fewshot_split, load_scene, scene_root
+    from senerf.data import detect_format, fewshot_split, load_scene, scene_root, view_names
     from senerf.train import PRESETS, choose_model, config_to_dict, preset_train_config
 
     scene_dir = scene_root(args.scene)  # a marker file (transforms_train.json, ...) names its folder
@@ -405,12 +427,12 @@ def _run(args, argv) -> int:
     if min(scene.size) < SSIM_MIN_SIDE:
         raise InputError(f"the images are {scene.size[1]}x{scene.size[0]} at downscale {downscale:g}; the "
                          f"evaluation (SSIM) needs at least {SSIM_MIN_SIDE}x{SSIM_MIN_SIDE}", field="--downscale")
-    protocol = args.protocol or ("views" if args.views is not None else
-                                 ("llff" if scene.kind == "forward_facing" or fmt == "colmap" else "extreme"))
+    protocol = args.protocol or _default_protocol(scene, fmt, args.views)
     train_idx, test_idx = fewshot_split(scene, protocol, views=args.views, n_views=args.n_views, seed=args.seed)
+    more = ' ...' if len(train_idx) > 12 else ''
     print(f"{PROG}: scene {scene.name} ({fmt}, {scene.size[1]}x{scene.size[0]}), protocol {protocol}: "
-          f"{len(train_idx)} training views {list(map(int, train_idx))[:12]}{' ...' if len(train_idx) > 12 else ''}, "
-          f"{len(test_idx)} test views")
+          f"{len(train_idx)} training views {list(map(int, train_idx))[:12]}{more} "
+          f"({', '.join(view_names(scene, train_idx[:12]))}{more}), {len(test_idx)} test views")
     if fmt == "colmap":   # the kind was decided from the cameras (or chosen): say which, and why
         from senerf.data.colmap import FORWARD_FACING_DEG, MAX_RAY_DEG, view_spread
 

@@ -142,13 +142,17 @@ def _draw_views(subfig, metrics: dict, views: list[int], compare: list[dict], ru
     render, titled with the image index, its angle and each render's PSNR."""
     n_cols = (ground_truth is not None) + len(compare)
     axes = np.asarray(subfig.subplots(len(views), n_cols, squeeze=False))
-    test_views = metrics.get("test_views")
+    test_views, test_images = metrics.get("test_views"), metrics.get("test_images")
     n_test = len(compare[0]["per_view"]["psnr"])
     for i, pos in enumerate(views):
         images = ([np.clip(np.asarray(ground_truth(pos), np.float32), 0.0, 1.0)] if ground_truth else [])
         images += [_read_render(run_dir, r["iteration"], pos) for r in compare]
-        name = (f"image {test_views[pos]}" if isinstance(test_views, list) and len(test_views) == n_test
-                else f"test view {pos}")
+        if isinstance(test_images, list) and len(test_images) == n_test:   # the photo's file, as the user has it
+            name = str(test_images[pos]) if len(str(test_images[pos])) <= 32 else "..." + str(test_images[pos])[-29:]
+        elif isinstance(test_views, list) and len(test_views) == n_test:
+            name = f"image {test_views[pos]}"
+        else:
+            name = f"test view {pos}"
         titles = ([f"ground truth ({name})"] if ground_truth else [])
         titles += [f"iteration {r['iteration']}: {r['per_view']['psnr'][pos]:.2f} dB" for r in compare]
         if angles_deg is not None:

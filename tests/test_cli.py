@@ -76,7 +76,10 @@ def test_tiny_end_to_end_fit_resume_and_overwrite(tiny_scene, tmp_path, capsys):
     assert main([str(tiny_scene), "--out", str(out), *TINY]) == 0
     metrics = json.loads((out / "metrics.json").read_text())
     assert set(metrics) == {"senerf_version", "command", "config", "scene", "train_views", "test_views",
-                            "resolution", "iterations", "seconds_total"}
+                            "train_images", "test_images", "resolution", "iterations", "seconds_total"}
+    # which photo each view index stands for (train split first, then test, in file order)
+    assert metrics["train_images"] == [f"train/r_{k}.png" for k in range(5)]
+    assert metrics["test_images"] == ["test/r_0.png", "test/r_1.png"] and metrics["test_views"] == [5, 6]
     assert metrics["resolution"] == [16, 16] and len(metrics["train_views"]) == 5 and len(metrics["test_views"]) == 2
     assert metrics["command"][0] == "senerf-fit" and metrics["config"]["train"]["steps"] == 24
     (it,) = metrics["iterations"]
@@ -121,8 +124,11 @@ def test_tiny_end_to_end_fit_resume_and_overwrite(tiny_scene, tmp_path, capsys):
         assert "holds a run.json that senerf-fit did not write" in _one_error_line(capsys)
         assert (out / "run.json").read_text() == foreign and (out / "metrics.json").read_bytes() == before
     (out / "run.json").write_bytes(run_json)
-    # ... unless --overwrite
+    # ... unless --overwrite, which says what it removed
+    capsys.readouterr()
     assert main([str(tiny_scene), "--out", str(out), *TINY, "--seed", "1", "--overwrite"]) == 0
+    assert (f"senerf-fit: --overwrite: removed the earlier run's checkpoints/, metrics.json, summary.png, run.json, "
+            f"iter_0/ from {out}\n") in capsys.readouterr().out
     assert json.loads((out / "metrics.json").read_text())["config"]["train"]["seed"] == 1
 
 
@@ -521,3 +527,33 @@ def test_a_colmap_object_capture_with_a_background_is_warned_about(tmp_path, cap
     root, _ = writers.ring_scene(tmp_path / "plain", False, np.arange(0, 360, 30), far_points=10)  # 20 %
     assert main([str(root), "--out", str(tmp_path / "o3"), *SMALL]) == 0
     assert "warning" not in capsys.readouterr().err
+
+
+def test_the_default_protocol_is_one_every_scene_folder_supports(tiny_scene, tmp_path, capsys):
+    # Before, every object scene defaulted to `extreme`, which only the NeRF Synthetic scenes (looked up by
+    # folder name) can use: a capture of one's own failed with "no Extreme views known" (so at a325121).
+    import types
+
+    import numpy as np
+
+    from senerf.cli import _default_protocol
+
+    def scene(name, n_test, kind="object"):
+        return types.SimpleNamespace(name=name, kind=kind, splits={"test": np.arange(n_test)})
+
+    assert _default_protocol(scene("lego", 200), "blender", None) == "extreme"
+    assert _default_protocol(scene("Chair", 200), "blender", None) == "extreme"   # names are case-insensitive
+    assert _default_protocol(scene("chair", 0), "ngp", None) == "llff"             # no test split: not the benchmark
+    assert _default_protocol(scene("my_capture", 200), "blender", None) == "llff"
+    assert _default_protocol(scene("lego", 20), "colmap", None) == "llff"
+    assert _default_protocol(scene("fern", 0, "forward_facing"), "llff", None) == "llff"
+    assert _default_protocol(scene("lego", 200), "blender", [0, 1]) == "views"
+    # the tiny scene (7 views: 5 train, 2 test) by hand: test = every 8th = [0]; the rest [1..6] at
+    # round(linspace(0, 5, 3)) = [0, 2, 5] (2.5 rounds to even) -> views 1, 3, 6
+    out = tmp_path / "o"
+    assert main([str(tiny_scene), "--out", str(out), *SMALL]) == 0
+    assert ("protocol llff: 3 training views [1, 3, 6] (train/r_1.png, train/r_3.png, test/r_1.png), 1 test views"
+            in capsys.readouterr().out)
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert metrics["train_images"] == ["train/r_1.png", "train/r_3.png", "test/r_1.png"]
+    assert metrics["test_images"] == ["train/r_0.png"]

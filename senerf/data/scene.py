@@ -20,7 +20,7 @@ import numpy as np
 from ..errors import InputError
 from ..geometry import Intrinsics
 
-__all__ = ["Scene", "SPLIT_NAMES", "as_background", "scene_file_digests", "changed_files"]
+__all__ = ["Scene", "SPLIT_NAMES", "as_background", "scene_file_digests", "changed_files", "view_names"]
 
 #: The split names every :class:`Scene` carries (possibly empty).
 SPLIT_NAMES = ("train", "val", "test")
@@ -157,6 +157,24 @@ class Scene:
         return (rgb * a + bg * (1.0 - a)).astype(np.float32)
 
 
+def _name_in(root, path) -> str:
+    """``path`` relative to ``root`` (``/``-separated), or its absolute path when it lies outside; lexically,
+    so a symlinked photo keeps the name it has in the scene folder."""
+    root, full = Path(os.path.abspath(root)), Path(os.path.abspath(path))
+    return full.relative_to(root).as_posix() if full.is_relative_to(root) else str(full)
+
+
+def view_names(scene: Scene, views) -> list[str]:
+    """The image file of each of ``views`` (int indices ``(m,)``), named relative to the scene folder: what a
+    view index stands for (``metrics.json`` records both).
+
+    Example:
+        >>> view_names(load_scene("lego", downscale=4), [0, 1, 51])   # doctest: +SKIP
+        ['train/r_0.png', 'train/r_1.png', 'train/r_51.png']
+    """
+    return [_name_in(scene.root, scene.image_paths[int(i)]) for i in np.asarray(views, dtype=np.int64).reshape(-1)]
+
+
 def scene_file_digests(scene: Scene, views=None) -> dict:
     """What the scene's files held when read: ``{name: sha256 hex digest, first 16 characters}``.
 
@@ -179,14 +197,11 @@ def scene_file_digests(scene: Scene, views=None) -> dict:
     """
     idx = range(scene.n_images) if views is None else np.asarray(views, dtype=np.int64).reshape(-1)
     paths = list(scene.source_files) + [scene.image_paths[int(i)] for i in idx]
-    root = Path(os.path.abspath(scene.root))   # lexically: a symlinked photo keeps its name in the folder
     out = {}
     for path in dict.fromkeys(paths):
-        full = Path(os.path.abspath(path))
-        name = full.relative_to(root).as_posix() if full.is_relative_to(root) else str(full)
         try:
-            with open(full, "rb") as f:
-                out[name] = hashlib.file_digest(f, "sha256").hexdigest()[:16]
+            with open(os.path.abspath(path), "rb") as f:
+                out[_name_in(scene.root, path)] = hashlib.file_digest(f, "sha256").hexdigest()[:16]
         except OSError as exc:
             raise InputError(f"cannot be read any more ({exc.strerror or exc})", file=path) from None
     return dict(sorted(out.items()))

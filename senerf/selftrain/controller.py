@@ -39,6 +39,7 @@ import numpy as np
 import torch
 
 from .. import __version__, geometry
+from ..data import view_names
 from ..errors import InputError
 from ..train import (atomic_write_text, build_field, camera_rays, config_to_dict, differences_text, eval_images,
                      evaluate, load_checkpoint, load_state_keeping_box, make_occupancy, render_views, save_checkpoint,
@@ -517,6 +518,7 @@ def run_selftraining(scene, train_idx, test_idx, model, train_cfg, cfg: SelfTrai
     settings = _run_settings(config, scene.name, train_idx, test_idx, (h, w))
     metrics = {"senerf_version": __version__, "command": list(command or []), "config": config,
                "scene": scene.name, "train_views": train_idx.tolist(), "test_views": test_idx.tolist(),
+               "train_images": view_names(scene, train_idx), "test_images": view_names(scene, test_idx),
                "resolution": [int(h), int(w)], "iterations": [], "seconds_total": 0.0}
     ckpt_dir = out / "checkpoints"
     teacher_path = ckpt_dir / "teacher.pt"

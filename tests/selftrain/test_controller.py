@@ -122,6 +122,8 @@ def test_tiny_end_to_end_with_resume(tiny_scene, tmp_path, monkeypatch):
                 "iterations", "seconds_total"):
         assert key in doc
     assert doc["resolution"] == [32, 32] and doc["train_views"] == [int(i) for i in train_idx]
+    for key, idx in (("train_images", train_idx), ("test_images", test_idx)):   # each index's photo
+        assert doc[key] == [scene.image_paths[int(i)].relative_to(scene.root).as_posix() for i in idx], key
     assert [it["iteration"] for it in doc["iterations"]] == [0, 1]
     it1 = doc["iterations"][1]
     assert 0.0 <= it1["reliable_fraction"] <= 1.0
