@@ -421,6 +421,7 @@ def _run(args, argv) -> int:
     kind = None if args.scene_kind is None else args.scene_kind.replace("-", "_")
     if kind is not None and fmt != "colmap":
         raise InputError(f"applies to COLMAP scenes only; {scene_dir} is a {fmt} scene", field="--scene-kind")
+    print(f"{PROG}: reading {scene_dir} ({fmt}, downscale {downscale:g})", flush=True)   # seconds for 400 photos
     scene = load_scene(scene_dir, downscale=downscale, kind=kind)
     from senerf.train.metrics import SSIM_MIN_SIDE
 

@@ -93,6 +93,7 @@ def test_tiny_end_to_end_fit_resume_and_overwrite(tiny_scene, tmp_path, capsys):
     assert (out / "checkpoints" / "iter_0_train.pt").is_file()
     assert (out / "summary.png").is_file()
     printed = capsys.readouterr().out
+    assert printed.startswith(f"senerf-fit: reading {tiny_scene} (blender, downscale 1)\n")   # before the photos load
     assert f"summary figure in {out / 'summary.png'}" in printed
     assert f"to fly around the fitted scene: senerf-render {out}\n" in printed
 
