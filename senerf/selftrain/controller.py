@@ -212,7 +212,7 @@ known_images = eval_images
 def estimate_reliability(teacher, occupancy, model, scene, train_idx, pseudo_c2w: np.ndarray, extractor,
                          cfg: SelfTrainConfig, alpha: float, known_features: np.ndarray | None = None,
                          device=None, renders: tuple[dict, dict] | None = None,
-                         pseudo_intrinsics=None) -> PseudoLabels:
+                         pseudo_intrinsics=None, progress: bool = False) -> PseudoLabels:
     """Render ``pseudo_c2w (P, 4, 4)`` with the teacher and estimate every pixel's reliability.
 
     Args:
@@ -229,6 +229,7 @@ def estimate_reliability(teacher, occupancy, model, scene, train_idx, pseudo_c2w
         pseudo_intrinsics: the pseudo cameras' ``Intrinsics`` (one, or a sequence of P); default image 0's
             (the controller passes each pseudo view its source input's, see ``_sample_pseudo_poses``).
             The known views always use their own (``scene.intrinsics_all``).
+        progress: tqdm bars over the teacher's renders and the pseudo views' features and warps.
     Returns:
         :class:`PseudoLabels`.
     """
@@ -239,8 +240,10 @@ def estimate_reliability(teacher, occupancy, model, scene, train_idx, pseudo_c2w
     if known_features is None:
         known_features = known_view_features(extractor, known_images(scene, train_idx, model))
     if renders is None:
-        renders = (render_views(teacher, model, known_intr, known_c2w, occupancy=occupancy, device=device),
-                   render_views(teacher, model, intr, pseudo_c2w, occupancy=occupancy, device=device))
+        renders = (render_views(teacher, model, known_intr, known_c2w, occupancy=occupancy, device=device,
+                                progress=progress),
+                   render_views(teacher, model, intr, pseudo_c2w, occupancy=occupancy, device=device,
+                                progress=progress))
     known, pseudo = renders
     if known["acc"].shape[0] != train_idx.size or pseudo["acc"].shape[0] != pseudo_c2w.shape[0]:
         raise ValueError("renders do not match the known / pseudo cameras")
@@ -249,7 +252,12 @@ def estimate_reliability(teacher, occupancy, model, scene, train_idx, pseudo_c2w
     pseudo_k = (intr,) * n if isinstance(intr, geometry.Intrinsics) else tuple(intr)
     sims = np.empty(pseudo["acc"].shape, np.float32)
     fg = np.empty(pseudo["acc"].shape, bool)
-    for i in range(n):
+    views = range(n)
+    if progress:
+        from tqdm.auto import tqdm
+
+        views = tqdm(views, desc="reliability", unit="view", dynamic_ncols=True)
+    for i in views:
         feats = extractor(np.clip(pseudo["rgb"][i:i + 1], 0.0, 1.0))[0]
         res = view_similarity(feats, pseudo["z_depth"][i], pseudo["acc"][i], pseudo_k[i], pseudo_c2w[i],
                               known_features, known_z, known_intr, known_c2w,
@@ -545,6 +553,9 @@ def run_selftraining(scene, train_idx, test_idx, model, train_cfg, cfg: SelfTrai
         field = build_field(model, seed=tcfg.seed, steps=tcfg.steps)
         extra = None
         if k > 0:
+            if cfg.reliability == "features":   # the seconds before the labels' line below, said
+                echo(f"selftrain: iteration {k}: labelling {cfg.n_pseudo_per_input * train_idx.size} pseudo views "
+                     f"(teacher renders, {cfg.features} features, reprojection into {train_idx.size} known views)")
             if extractor is None and cfg.reliability == "features":
                 extractor = make_feature_extractor(cfg.features, **(
                     {"normalize_layers": cfg.normalize_layers} if cfg.features == "vgg19" else {}))
@@ -558,7 +569,7 @@ def run_selftraining(scene, train_idx, test_idx, model, train_cfg, cfg: SelfTrai
                 pseudo_c2w, pseudo_k = _sample_pseudo_poses(scene, train_idx, cfg, k)
                 labels = estimate_reliability(teacher, occupancy, model, scene, train_idx, pseudo_c2w, extractor,
                                               cfg, cfg.alpha(k), known_features=known_feats, device=device,
-                                              pseudo_intrinsics=pseudo_k)
+                                              pseudo_intrinsics=pseudo_k, progress=progress)
             reliable_fraction = labels.reliable_fraction
             _write_pseudo_pngs(out / f"iter_{k}" / "pseudo", labels)
             tau_txt = ("oracle" if cfg.reliability == "oracle" else "soft" if labels.tau is None

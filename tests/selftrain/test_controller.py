@@ -116,6 +116,10 @@ def test_tiny_end_to_end_with_resume(tiny_scene, tmp_path, monkeypatch):
     # resumed after the finished baseline: one student trained, with the distillation hook
     assert len(calls) == 1 and calls[0] is not None
     assert any("resuming after iteration 0" in s for s in lines)
+    # the labelling is announced before its seconds of renders, features and warps, then summed up
+    said = [s for s in lines if s.startswith("selftrain: iteration 1: ")]
+    assert said[0] == ("selftrain: iteration 1: labelling 3 pseudo views (teacher renders, vgg19 features, "
+                       "reprojection into 3 known views)") and "pseudo views within 10 deg" in said[1]
     doc = json.loads((out / "metrics.json").read_text())
     assert doc == json.loads(json.dumps(m1))
     for key in ("senerf_version", "command", "config", "scene", "train_views", "test_views", "resolution",
@@ -333,7 +337,7 @@ def test_runs_made_before_the_new_settings_keep_their_resume_identity():
 # The labelling of estimate_reliability on canned similarities (renders handed in, view_similarity stubbed)
 
 
-def _canned_labels(monkeypatch, sims, acc, cfg, alpha):
+def _canned_labels(monkeypatch, sims, acc, cfg, alpha, progress=False):
     """``estimate_reliability`` on ``P`` pseudo views whose per-pixel similarity is ``sims (P, H, W)`` and
     teacher opacity ``acc (P, H, W)`` (foreground: ``acc >= cfg.opacity_threshold``); no rendering, no
     features: the renders are handed in and ``view_similarity`` returns the canned values view by view."""
@@ -360,7 +364,7 @@ def _canned_labels(monkeypatch, sims, acc, cfg, alpha):
     extractor = lambda images: np.zeros((images.shape[0], h, w, 2), np.float32)  # noqa: E731
     return controller_mod.estimate_reliability(None, None, None, scene, [0], np.stack([np.eye(4)] * p), extractor,
                                                cfg, alpha, known_features=np.zeros((1, h, w, 2), np.float32),
-                                               renders=(known, pseudo))
+                                               renders=(known, pseudo), progress=progress)
 
 
 def _quantile_by_sorting(values: np.ndarray, q: float) -> float:
@@ -539,3 +543,16 @@ def test_a_resumed_teacher_keeps_the_annealing_weights_it_was_saved_with(tmp_pat
     loaded, _, iteration, _ = controller_mod._load_teacher(path, model, cfg, settings, "cpu")
     assert iteration == 0
     assert loaded.band_weights.tolist() == saved.tolist()
+
+
+def test_the_pseudo_views_labelling_shows_a_progress_bar(monkeypatch, capsys):
+    # Before, the features and warps of the pseudo views (seconds each at 400x400) ran without a word (so at
+    # cc2e9b6).
+    sims, acc = _two_views_with_a_bright_background()
+    cfg = SelfTrainConfig(features="daisy", threshold="adaptive", empty_opacity=0.0)
+    quiet = _canned_labels(monkeypatch, sims, acc, cfg, alpha=0.25)
+    assert "reliability" not in capsys.readouterr().err
+    shown = _canned_labels(monkeypatch, sims, acc, cfg, alpha=0.25, progress=True)
+    err = capsys.readouterr().err
+    assert "reliability" in err and f"{len(sims)}/{len(sims)}" in err
+    np.testing.assert_array_equal(shown.weights, quiet.weights)
