@@ -33,7 +33,7 @@ from senerf.errors import InputError
 __all__ = ["main", "build_parser", "parse_views"]
 
 PROG = "senerf-fit"
-_CLI_PROTOCOLS = ("extreme", "llff", "all", "infonerf4", "random8")
+_CLI_PROTOCOLS = ("extreme", "spread", "llff", "all", "infonerf4", "random8")
 _RUN_FILE = "run.json"
 
 
@@ -61,10 +61,11 @@ def build_parser() -> argparse.ArgumentParser:
     g = p.add_argument_group("views")
     g.add_argument("--views", type=argument_type(parse_views),
                    help="training view indices, e.g. 0,1,51 (into the train split)")
-    g.add_argument("--n-views", type=int_flag("--n-views"), help="number of views (llff, random8)")
+    g.add_argument("--n-views", type=int_flag("--n-views"), help="number of views (llff, spread, random8)")
     g.add_argument("--protocol", choices=_CLI_PROTOCOLS,
-                   help="few-shot protocol (default: 'views' with --views, extreme for the NeRF Synthetic scenes, "
-                        "else llff: every 8th image tests, 3 views spread over the rest train)")
+                   help="few-shot protocol (default: 'views' with --views; extreme for the NeRF Synthetic scenes; "
+                        "spread for other scenes with a test split: 3 views spread over the train split; else "
+                        "llff: every 8th image tests, 3 views spread over the rest train)")
     g.add_argument("--scene-kind", choices=("object", "forward-facing"),
                    help="COLMAP scenes: fit as an object or as a forward-facing (LLFF, NDC) capture instead of "
                         "the kind the cameras' spread suggests")
@@ -210,16 +211,19 @@ def _check_model_fits(model, device: str = "cpu") -> None:
 
 
 def _default_protocol(scene, fmt: str, views) -> str:
-    """``views`` when views are given; ``extreme`` for a NeRF Synthetic scene (a Blender-style object scene
-    named in :data:`senerf.data.EXTREME_VIEWS`, with a test split); else ``llff`` (every 8th image held out
-    for testing, 3 training views spread over the rest), which every scene folder supports: a capture of
-    one's own has no published views."""
+    """The protocol when ``--protocol`` is not given: ``views`` when views are given; for a Blender-style
+    object scene with a test split (not COLMAP's), ``extreme`` when it is named in
+    :data:`senerf.data.EXTREME_VIEWS` (a NeRF Synthetic scene) and ``spread`` otherwise (3 training views
+    spread over its train split, its test split held out); for every other scene ``llff`` (every 8th image
+    held out for testing, 3 training views spread over the rest).  A capture of one's own has no published
+    views, so only the benchmark scenes default to theirs."""
     from senerf.data import EXTREME_VIEWS
 
     if views is not None:
         return "views"
-    benchmark = scene.name.lower() in EXTREME_VIEWS and len(scene.splits["test"]) > 0
-    return "extreme" if scene.kind == "object" and fmt != "colmap" and benchmark else "llff"
+    if scene.kind == "object" and fmt != "colmap" and len(scene.splits["test"]) > 0:
+        return "extreme" if scene.name.lower() in EXTREME_VIEWS else "spread"
+    return "llff"
 
 
 #: A COLMAP object capture with at least this share of its 3D points outside the fitted box gets a warning.
@@ -234,7 +238,11 @@ def _warn_points_outside(scene_dir, model) -> None:
 
     from senerf.data.colmap import sparse_points
 
-    xyz = sparse_points(scene_dir)
+    try:
+        xyz = sparse_points(scene_dir)
+    except InputError as exc:   # the fit does not use the points: a check that cannot run must not stop it
+        print(f"{PROG}: warning: the 3D points could not be checked against the box ({exc})", file=sys.stderr)
+        return
     if xyz is None or len(xyz) == 0:
         return
     box = np.asarray(model.aabb, dtype=np.float64)
@@ -254,14 +262,14 @@ _RUN_KEYS = frozenset({"scene_dir", "format", "protocol", "train", "model"})
 _OUTPUT_NAMES = ("checkpoints", "metrics.json", "summary.png", "render", _RUN_FILE)
 
 
-def _scene_files(scene, train_idx, test_idx, st_cfg) -> dict:
+def _scene_files(scene, train_idx, test_idx, oracle: bool) -> dict:
     """:func:`senerf.data.scene_file_digests` of the files the run reads: the poses and cameras, the
-    training and test views' images, and with oracle reliability every view's (the held-out ones label it)."""
+    training and test views' images, and with oracle reliability every view's (the held-out ones label it;
+    decided by the flag, not by whether this call self-trains, so ``--iterations 0`` then 1 is one run)."""
     import numpy as np
 
     from senerf.data import scene_file_digests
 
-    oracle = st_cfg is not None and st_cfg.reliability == "oracle"
     return scene_file_digests(scene, None if oracle else np.union1d(train_idx, test_idx))
 
 
@@ -482,7 +490,7 @@ def _run(args, argv) -> int:
     # empty_opacity is always part of the fingerprint (None when not given), as before the other overrides
     identity["selftrain_flags"] = {**_selftrain_flags(args), "empty_opacity": args.empty_opacity,
                                    **_selftrain_overrides(args)}
-    identity["scene_files"] = _scene_files(scene, train_idx, test_idx, st_cfg)
+    identity["scene_files"] = _scene_files(scene, train_idx, test_idx, args.reliability == "oracle")
     _prepare_out(out, identity, args.overwrite)
     print(f"{PROG}: writing to {out}")
 

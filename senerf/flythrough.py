@@ -194,12 +194,12 @@ def _warn_if_files_changed(recorded, scene, run_path: Path) -> None:
     """Warn when the scene's files no longer hold what the fit read (``run.json``'s ``scene_files``; runs
     made before senerf-fit recorded them are not checked): the cameras then come from the files as they are
     now, which may not be the frame the field was fitted in."""
-    from senerf.data import scene_file_digests
-    from senerf.data.scene import changed_files
+    from senerf.data import changed_files, scene_file_digests, view_names
 
     if not isinstance(recorded, dict):
         return
-    now = scene_file_digests(scene)
+    views = [i for i, name in enumerate(view_names(scene, range(scene.n_images))) if name in recorded]
+    now = scene_file_digests(scene, views)   # the photos the fit read (and the pose and camera files)
     lines = changed_files(recorded, {name: digest for name, digest in now.items() if name in recorded})
     if lines:
         more = f" and {len(lines) - 1} more" if len(lines) > 1 else ""

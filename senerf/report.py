@@ -139,7 +139,8 @@ def _draw_per_view(ax, compare: list[dict], angles_deg: np.ndarray | None, bin_d
 def _draw_views(subfig, metrics: dict, views: list[int], compare: list[dict], run_dir: Path,
                 angles_deg: np.ndarray | None, ground_truth: Callable[[int], np.ndarray] | None) -> None:
     """One row per test view position in ``views``: ground truth (when given), then each compared iteration's
-    render, titled with the image index, its angle and each render's PSNR."""
+    render, titled with the photo's file (``metrics['test_images']``; else the view's index), its angle and each
+    render's PSNR."""
     n_cols = (ground_truth is not None) + len(compare)
     axes = np.asarray(subfig.subplots(len(views), n_cols, squeeze=False))
     test_views, test_images = metrics.get("test_views"), metrics.get("test_images")

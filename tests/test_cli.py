@@ -172,6 +172,30 @@ def test_a_scene_whose_files_changed_is_not_resumed(tiny_scene, tmp_path, capsys
     assert json.loads((out / "run.json").read_text())["scene_files"] == scene_file_digests(load_scene(scene))
 
 
+def test_only_the_files_a_run_reads_are_compared_and_oracle_runs_extend(tiny_scene, tmp_path, capsys):
+    # The review of 7745791: every resume test used `--protocol all`, so nothing showed that a photo the run
+    # does not read may change; and an oracle run started with --iterations 0 hashed only the training and
+    # test photos, then refused its own extension ("test/r_0.png is read now, not then").
+    import shutil
+
+    scene = shutil.copytree(tiny_scene, tmp_path / "scene")
+    argv = [str(scene), "--out", str(tmp_path / "o"), *SMALL, "--views", "0,1,3"]
+    assert main(argv) == 0
+    recorded = json.loads((tmp_path / "o" / "run.json").read_text())["scene_files"]
+    assert sorted(recorded) == ["test/r_0.png", "test/r_1.png", "train/r_0.png", "train/r_1.png", "train/r_3.png",
+                                "transforms_test.json", "transforms_train.json"]
+    unused = scene / "train" / "r_2.png"
+    unused.write_bytes(unused.read_bytes() + b"\0")
+    assert main(argv) == 0   # not a photo this run reads
+    oracle = [str(scene), "--out", str(tmp_path / "oracle"), *SMALL, "--views", "0,1", "--reliability", "oracle",
+              "--features", "daisy", "--pseudo-views", "1"]
+    assert main([*oracle, "--iterations", "0"]) == 0
+    assert len(json.loads((tmp_path / "oracle" / "run.json").read_text())["scene_files"]) == 2 + 7   # every photo
+    assert main([*oracle, "--iterations", "1"]) == 0
+    assert [it["iteration"] for it in json.loads((tmp_path / "oracle" / "metrics.json").read_text())["iterations"]] \
+        == [0, 1]
+
+
 def test_overwrite_never_deletes_what_senerf_fit_did_not_make(tiny_scene, tmp_path, capsys):
     # A user's folder: no run.json of ours, but a metrics.json and a checkpoints folder of their own.
     # Before, a foreign run.json counted as "a different run" and --overwrite deleted checkpoints/ (so at 71d19d4).
@@ -528,6 +552,13 @@ def test_a_colmap_object_capture_with_a_background_is_warned_about(tmp_path, cap
     root, _ = writers.ring_scene(tmp_path / "plain", False, np.arange(0, 360, 30), far_points=10)  # 20 %
     assert main([str(root), "--out", str(tmp_path / "o3"), *SMALL]) == 0
     assert "warning" not in capsys.readouterr().err
+    # a points3D the fit does not need, malformed: the check says so and the fit goes on (before, exit 2)
+    with open(root / "sparse" / "0" / "points3D.txt", "a") as f:
+        f.write("1 2 3\n")
+    assert main([str(root), "--out", str(tmp_path / "o4"), *SMALL]) == 0
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("senerf-fit: warning: the 3D points could not be checked against "
+                                               "the box (") and "points3D.txt" in err[0]
 
 
 def test_the_default_protocol_is_one_every_scene_folder_supports(tiny_scene, tmp_path, capsys):
@@ -545,16 +576,22 @@ def test_the_default_protocol_is_one_every_scene_folder_supports(tiny_scene, tmp
     assert _default_protocol(scene("lego", 200), "blender", None) == "extreme"
     assert _default_protocol(scene("Chair", 200), "blender", None) == "extreme"   # names are case-insensitive
     assert _default_protocol(scene("chair", 0), "ngp", None) == "llff"             # no test split: not the benchmark
-    assert _default_protocol(scene("my_capture", 200), "blender", None) == "llff"
+    assert _default_protocol(scene("my_capture", 200), "blender", None) == "spread"   # its test split stays held out
+    assert _default_protocol(scene("my_capture", 0), "ngp", None) == "llff"
     assert _default_protocol(scene("lego", 20), "colmap", None) == "llff"
     assert _default_protocol(scene("fern", 0, "forward_facing"), "llff", None) == "llff"
     assert _default_protocol(scene("lego", 200), "blender", [0, 1]) == "views"
-    # the tiny scene (7 views: 5 train, 2 test) by hand: test = every 8th = [0]; the rest [1..6] at
-    # round(linspace(0, 5, 3)) = [0, 2, 5] (2.5 rounds to even) -> views 1, 3, 6
+    # the tiny scene (5 train, 2 test views; not a NeRF Synthetic name) by hand: spread takes the train split at
+    # round(linspace(0, 4, 3)) = [0, 2, 4]; its test split stays the test
     out = tmp_path / "o"
     assert main([str(tiny_scene), "--out", str(out), *SMALL]) == 0
+    assert ("protocol spread: 3 training views [0, 2, 4] (train/r_0.png, train/r_2.png, train/r_4.png), 2 test "
+            "views" in capsys.readouterr().out)
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert metrics["train_images"] == ["train/r_0.png", "train/r_2.png", "train/r_4.png"]
+    assert metrics["test_images"] == ["test/r_0.png", "test/r_1.png"]
+    # llff, asked for, over all 7 views: test = every 8th = [0]; the rest [1..6] at round(linspace(0, 5, 3)) =
+    # [0, 2, 5] (2.5 rounds to even) -> views 1, 3, 6
+    assert main([str(tiny_scene), "--out", str(tmp_path / "l"), *SMALL, "--protocol", "llff"]) == 0
     assert ("protocol llff: 3 training views [1, 3, 6] (train/r_1.png, train/r_3.png, test/r_1.png), 1 test views"
             in capsys.readouterr().out)
-    metrics = json.loads((out / "metrics.json").read_text())
-    assert metrics["train_images"] == ["train/r_1.png", "train/r_3.png", "test/r_1.png"]
-    assert metrics["test_images"] == ["train/r_0.png"]

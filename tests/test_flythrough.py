@@ -607,6 +607,10 @@ def test_a_scene_whose_files_changed_since_the_fit_is_rendered_with_a_warning(ru
     assert err == [f"senerf-render: warning: {run_dir / 'run.json'}: the scene's files changed since the fit "
                    "(test/r_1.png changed); its cameras and photos are read as they are now"]
     assert (tmp_path / "changed" / "rgb.gif").is_file()
+    # a run of some views only: the photos it did not read are not compared (no false warning)
+    assert main([str(runs.st), "--path", "test", "--out", str(tmp_path / "st"), "--quiet", "--iteration", "0"]) == 0
+    assert "warning" not in capsys.readouterr().err
+    assert "train/r_2.png" not in json.loads((runs.st / "run.json").read_text())["scene_files"]
     # a run.json from before the files were recorded is not checked
     _edit_json(run_dir / "run.json", lambda run: run.pop("scene_files"))
     assert main([str(run_dir), "--path", "test", "--out", str(tmp_path / "old"), "--quiet"]) == 0

@@ -11,6 +11,7 @@ Public API::
     Distortion, undistorted_intrinsics, undistortion_maps, undistort_image, distort_pixels
                                             lens undistortion, applied by the JSON loaders (OPENCV, OPENCV_FISHEYE)
     scene_file_digests(scene, views=None) -> {name: sha256}   what the scene's files held (resume checks)
+    changed_files(then, now) -> [line]      how two such records differ, one line per file
     view_names(scene, views) -> [name]      each view's image file, relative to the scene folder
     EXTREME_VIEWS, INFONERF4_VIEWS, PROTOCOLS
 
@@ -24,12 +25,13 @@ from .colmap import load_colmap
 from .fewshot import EXTREME_VIEWS, INFONERF4_VIEWS, PROTOCOLS, fewshot_split
 from .llff import load_llff, recenter_poses
 from .load import detect_format, load_scene, scene_root
-from .scene import Scene, scene_file_digests, view_names
+from .scene import Scene, changed_files, scene_file_digests, view_names
 from .undistort import Distortion, distort_pixels, undistort_image, undistorted_intrinsics, undistortion_maps
 
 __all__ = [
     "Scene",
     "scene_file_digests",
+    "changed_files",
     "view_names",
     "load_scene",
     "detect_format",

@@ -45,6 +45,7 @@ from .scene import Scene
 from .undistort import FISHEYE_MODELS, PERSPECTIVE_MODELS, Distortion, Undistorter
 
 __all__ = ["load_colmap", "colmap_model_folder", "view_spread", "read_cameras", "read_images", "read_points3d",
+           "sparse_points",
            "ColmapCamera", "ColmapImage", "FORWARD_FACING_DEG", "MAX_RAY_DEG", "CAMERA_MODELS"]
 
 #: A capture is forward-facing when every camera looks within this many degrees of the cameras' mean direction

@@ -13,6 +13,9 @@ protocol       train / test
 ``random8``    ``n_views`` (default 8) distinct train-split views drawn with
                ``np.random.default_rng(seed).choice(n_train, n_views, replace=False)`` (kept in draw
                order).  Test: the test split.
+``spread``     ``n_views`` (default 3) train-split views spread evenly over it:
+               ``train[round(linspace(0, n_train - 1, n_views))]`` (rounding half to even).  Test: the test
+               split.  For a split scene of one's own (no published views), keeping its test split held out.
 ``llff``       Over *all* images: test = every 8th (``index % 8 == 0``); train =
                ``rest[round(linspace(0, n_rest - 1, n_views))]`` with ``n_views`` default 3 (rounding half
                to even, ``np.round``).
@@ -54,7 +57,7 @@ EXTREME_VIEWS = {
 }
 #: InfoNeRF's NeRF Synthetic 4-view protocol (indices into the train split).
 INFONERF4_VIEWS = (26, 86, 2, 55)
-PROTOCOLS = ("extreme", "infonerf4", "random8", "llff", "views", "all")
+PROTOCOLS = ("extreme", "infonerf4", "random8", "spread", "llff", "views", "all")
 
 
 def _as_view_list(views, n: int, what: str) -> np.ndarray:
@@ -107,7 +110,7 @@ def fewshot_split(scene: Scene, protocol: str = "extreme", views=None, n_views=N
         scene: a loaded :class:`Scene`.
         protocol: one of :data:`PROTOCOLS`.
         views: explicit view indices (``'views'``; overrides the table for ``'extreme'``).
-        n_views: number of training views (``'llff'``: default 3; ``'random8'``: default 8).
+        n_views: number of training views (``'llff'``, ``'spread'``: default 3; ``'random8'``: default 8).
         seed: seed of ``'random8'``.
 
     Returns:
@@ -122,8 +125,9 @@ def fewshot_split(scene: Scene, protocol: str = "extreme", views=None, n_views=N
     if views is not None and protocol not in ("extreme", "views"):
         raise InputError(f"explicit views are not used by protocol {protocol!r} (give --views without "
                          "--protocol; in Python, protocol 'views')", field="--views")
-    if n_views is not None and protocol not in ("llff", "random8"):
-        raise InputError(f"not used by protocol {protocol!r} (only 'llff' and 'random8')", field="--n-views")
+    if n_views is not None and protocol not in ("llff", "random8", "spread"):
+        raise InputError(f"not used by protocol {protocol!r} (only 'llff', 'random8' and 'spread')",
+                         field="--n-views")
     train_split = scene.splits["train"]
     n_train = int(train_split.size)
 
@@ -147,6 +151,11 @@ def fewshot_split(scene: Scene, protocol: str = "extreme", views=None, n_views=N
         rng = np.random.default_rng(seed)
         pick = rng.choice(n_train, size=k, replace=False)
         return train_split[np.asarray(pick, np.int64)], _test_split(scene, protocol)
+    if protocol == "spread":
+        test = _test_split(scene, protocol)
+        k = _n_views(n_views, 3, n_train, "train-split views")
+        pick = np.round(np.linspace(0, n_train - 1, k)).astype(np.int64)
+        return train_split[pick], test
     if protocol == "all":
         if n_train == 0:
             raise InputError(f"scene {scene.name!r} has an empty train split", field="--protocol")

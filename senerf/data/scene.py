@@ -175,6 +175,16 @@ def view_names(scene: Scene, views) -> list[str]:
     return [_name_in(scene.root, scene.image_paths[int(i)]) for i in np.asarray(views, dtype=np.int64).reshape(-1)]
 
 
+def _sha256_prefix(path: str) -> str:
+    """The first 16 hex digits of the SHA-256 of the file's bytes, read in 1 MiB chunks (Python 3.10 has no
+    ``hashlib.file_digest``)."""
+    digest = hashlib.sha256()
+    with open(path, "rb") as f:
+        for chunk in iter(lambda: f.read(1 << 20), b""):
+            digest.update(chunk)
+    return digest.hexdigest()[:16]
+
+
 def scene_file_digests(scene: Scene, views=None) -> dict:
     """What the scene's files held when read: ``{name: sha256 hex digest, first 16 characters}``.
 
@@ -200,8 +210,7 @@ def scene_file_digests(scene: Scene, views=None) -> dict:
     out = {}
     for path in dict.fromkeys(paths):
         try:
-            with open(os.path.abspath(path), "rb") as f:
-                out[_name_in(scene.root, path)] = hashlib.file_digest(f, "sha256").hexdigest()[:16]
+            out[_name_in(scene.root, path)] = _sha256_prefix(os.path.abspath(path))
         except OSError as exc:
             raise InputError(f"cannot be read any more ({exc.strerror or exc})", file=path) from None
     return dict(sorted(out.items()))

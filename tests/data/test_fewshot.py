@@ -84,6 +84,18 @@ def test_llff_protocol_general_n():
     assert train.tolist() == [1, 10, 20, 29]
 
 
+def test_spread_protocol_by_hand():
+    # train split = arrays 10..109 (100 views); linspace(0, 99, 3) = 0, 49.5, 99 -> round 0, 50 (49.5 to even),
+    # 99 -> arrays 10, 60, 109; test = the test split, untouched
+    train, test = fewshot_split(blender_like(), "spread")
+    assert train.tolist() == [10, 60, 109] and test.tolist() == list(range(110, 130))
+    # n_views 4: linspace(0, 99, 4) = 0, 33, 66, 99
+    assert fewshot_split(blender_like(), "spread", n_views=4)[0].tolist() == [10, 43, 76, 109]
+    with pytest.raises(InputError, match="no test split") as info:   # it never invents a hold-out
+        fewshot_split(make_scene(5, {"train": np.arange(5)}, name="mine"), "spread")
+    assert info.value.field == "--protocol"
+
+
 def test_views_blender_into_train_split():
     train, test = fewshot_split(blender_like(), "views", views=[0, 99])
     assert train.tolist() == [10, 109] and test.tolist() == list(range(110, 130))
@@ -121,6 +133,8 @@ def test_all_protocol():
         (dict(protocol="llff", n_views=0), "--n-views", "must be in"),
         (dict(protocol="llff", n_views=200), "--n-views", "must be in"),
         (dict(protocol="random8", n_views=101), "--n-views", "must be in"),
+        (dict(protocol="spread", n_views=101), "--n-views", "must be in"),
+        (dict(protocol="spread", views=[1]), "--views", "not used"),
         (dict(protocol="fancy"), "--protocol", "unknown protocol"),
     ],
 )
