@@ -15,6 +15,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import warnings
 from pathlib import Path
 
 import cv2
@@ -293,7 +294,7 @@ def load_images(paths, fields, file_of, downscale: float = 1.0, size: tuple[int,
     Returns:
         ``rgb (n, H', W', 3)`` float32, ``alpha (n, H', W')`` float32 or ``None``, and the decoded
         size ``(H, W)`` before downscaling.  When only some images carry alpha, the others get alpha 1
-        (opaque); when none do, alpha is ``None``.
+        (opaque, with a warning naming the first); when none do, alpha is ``None``.
 
     Raises:
         InputError: any :func:`read_rgba` problem, or an image whose size differs from the first one.
@@ -303,6 +304,7 @@ def load_images(paths, fields, file_of, downscale: float = 1.0, size: tuple[int,
         raise ValueError("load_images: no images given (callers check for empty frame lists)")
     rgb_all = alpha_all = None
     any_alpha = False
+    opaque = []   # images without an alpha channel
     size0 = out_size = None
     for k, (path, field, file) in enumerate(zip(paths, fields, file_of)):
         img = read_rgba(path, field, file)
@@ -325,4 +327,10 @@ def load_images(paths, fields, file_of, downscale: float = 1.0, size: tuple[int,
         if img.shape[2] == 4:
             alpha_all[k] = img[..., 3]
             any_alpha = True
+        else:
+            opaque.append(k)
+    if any_alpha and opaque:   # an RGB photo among RGBA ones: its background is trained as part of the object
+        k = opaque[0]
+        warnings.warn(f"{file_of[k]}: {len(opaque)} of {n} photos have no alpha channel ({fields[k]}: "
+                      f"{Path(paths[k]).name}); they are taken as fully opaque, background included", stacklevel=3)
     return rgb_all, (alpha_all if any_alpha else None), size0

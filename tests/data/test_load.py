@@ -432,6 +432,7 @@ def test_16bit_rgb_png_survives_loader(tmp_path, writers):
     root = writers.blender(tmp_path / "s", n_val=0, n_test=0)
     img = np.random.default_rng(3).integers(0, 65536, size=(4, 4, 3), dtype=np.uint16)
     cv2.imwrite(str(root / "train" / "r_0.png"), img[..., ::-1])
-    scene = load_scene(root)
+    with pytest.warns(UserWarning, match=r"transforms_train\.json: 1 of 2 photos have no alpha channel \(frames\[0\]"):
+        scene = load_scene(root)
     np.testing.assert_allclose(scene.rgb[0], img / 65535.0, atol=1e-7)
     assert math.isclose(float(scene.alpha[0].min()), 1.0)  # frame without alpha is opaque, r_1 keeps its own
