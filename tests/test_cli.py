@@ -499,16 +499,11 @@ def test_help_names_every_output(capsys):
 
 def test_scene_kind_is_chosen_for_colmap_scenes_recorded_and_rendered_with(tmp_path, tiny_scene, capsys):
     # a COLMAP capture around an object, fitted as chosen; senerf-render reloads it with the recorded kind
-    import importlib.util
-    from pathlib import Path
-
     import numpy as np
 
     from senerf.flythrough import main as render
 
-    spec = importlib.util.spec_from_file_location("colmap_writers", Path(__file__).parent / "data" / "test_colmap.py")
-    writers = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(writers)
+    writers = _colmap_writers()
     root, _ = writers.ring_scene(tmp_path / "ring", True, np.arange(0, 360, 30), elevation=5.0)
     assert main([str(root), "--out", str(tmp_path / "o"), "--scene-kind", "forward-facing", *SMALL]) == 2
     assert "kind: some rays look" in _one_error_line(capsys)
@@ -532,14 +527,9 @@ def test_scene_kind_is_chosen_for_colmap_scenes_recorded_and_rendered_with(tmp_p
 def test_a_colmap_object_capture_with_a_background_is_warned_about(tmp_path, capsys):
     # Before, a capture whose sparse points mostly lie beyond the fitted box (a background all around) was
     # fitted without a word, its background baked onto the box (so at 737942e).
-    import importlib.util
-    from pathlib import Path
-
     import numpy as np
 
-    spec = importlib.util.spec_from_file_location("colmap_writers", Path(__file__).parent / "data" / "test_colmap.py")
-    writers = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(writers)
+    writers = _colmap_writers()
     # 40 points at the centre, inside the box (half size ~1.7 around the origin), and 60 at radius 20
     root, _ = writers.ring_scene(tmp_path / "bg", True, np.arange(0, 360, 30), far_points=60)
     assert main([str(root), "--out", str(tmp_path / "o1"), *SMALL]) == 0
@@ -578,6 +568,8 @@ def test_the_default_protocol_is_one_every_scene_folder_supports(tiny_scene, tmp
     assert _default_protocol(scene("chair", 0), "ngp", None) == "llff"             # no test split: not the benchmark
     assert _default_protocol(scene("my_capture", 200), "blender", None) == "spread"   # its test split stays held out
     assert _default_protocol(scene("my_capture", 0), "ngp", None) == "llff"
+    assert _default_protocol(scene("my_capture", 1), "blender", None) == "spread"   # one test view is a split
+    assert _default_protocol(scene("fern", 3, "forward_facing"), "llff", None) == "llff"   # LLFF's every 8th
     assert _default_protocol(scene("lego", 20), "colmap", None) == "llff"
     assert _default_protocol(scene("fern", 0, "forward_facing"), "llff", None) == "llff"
     assert _default_protocol(scene("lego", 200), "blender", [0, 1]) == "views"
@@ -595,3 +587,81 @@ def test_the_default_protocol_is_one_every_scene_folder_supports(tiny_scene, tmp
     assert main([str(tiny_scene), "--out", str(tmp_path / "l"), *SMALL, "--protocol", "llff"]) == 0
     assert ("protocol llff: 3 training views [1, 3, 6] (train/r_1.png, train/r_3.png, test/r_1.png), 1 test views"
             in capsys.readouterr().out)
+
+
+def _colmap_writers():
+    import importlib.util
+    from pathlib import Path
+
+    spec = importlib.util.spec_from_file_location("colmap_writers", Path(__file__).parent / "data" / "test_colmap.py")
+    writers = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(writers)
+    return writers
+
+
+def test_the_box_check_by_hand(monkeypatch, capsys):
+    # The mutation audit: the 25 % boundary, the figures printed and an empty points3D were untested.
+    import types
+    import warnings
+
+    import numpy as np
+
+    import senerf.data.colmap as colmap
+    from senerf.cli import _warn_points_outside
+
+    model = types.SimpleNamespace(aabb=((-1.0, -1.0, -1.0), (3.0, 3.0, 3.0)))   # centre (1, 1, 1), half size 2
+    inside, outside = [0.0, 0.0, 0.0], [5.0, 0.0, 0.0]
+    for points, warned in (([inside] * 3 + [outside], "25% of the capture's 4 3D points"),   # at the limit
+                           ([inside] * 4 + [outside], None), ([], None)):
+        monkeypatch.setattr(colmap, "sparse_points", lambda root, xyz=points: np.asarray(xyz, float).reshape(-1, 3))
+        with warnings.catch_warnings():   # no numpy warning for an empty cloud either
+            warnings.simplefilter("error")
+            _warn_points_outside("scene", model)
+        err = capsys.readouterr().err
+        if warned is None:
+            assert err == ""
+        else:
+            assert f"senerf-fit: warning: {warned} lie outside the box the field is fitted in (centre (1, 1, 1), " \
+                   "half size 2)" in err
+
+
+def test_a_forward_facing_colmap_capture_is_not_checked_against_a_box(tmp_path, capsys):
+    # its points are in COLMAP's frame, its field in the normalised NDC one: no box to check
+    import numpy as np
+
+    root, _ = _colmap_writers().ring_scene(tmp_path / "ff", True, [0, 5, 10, 15, 20], far_points=60)
+    assert main([str(root), "--out", str(tmp_path / "o"), *SMALL]) == 0
+    captured = capsys.readouterr()
+    assert "fitted as forward-facing" in captured.out and "lie outside the box" not in captured.err
+    assert np.isfinite(json.loads((tmp_path / "o" / "metrics.json").read_text())["iterations"][0]["psnr"])
+
+
+def test_the_printed_views_stop_at_twelve(tmp_path, capsys):
+    from senerf.procedural.export import export_blender_scene
+
+    scene = export_blender_scene(tmp_path / "s", n_train=13, n_val=0, n_test=1, width=16, height=16, seed=0)
+    assert main([str(scene), "--out", str(tmp_path / "o13"), *TINY]) == 0
+    line = next(s for s in capsys.readouterr().out.splitlines() if "training views" in s)
+    assert line.endswith("13 training views [0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11] ... (train/r_0.png, "
+                         "train/r_1.png, train/r_2.png, train/r_3.png, train/r_4.png, train/r_5.png, train/r_6.png, "
+                         "train/r_7.png, train/r_8.png, train/r_9.png, train/r_10.png, train/r_11.png ...), "
+                         "1 test views")
+    assert main([str(scene), "--out", str(tmp_path / "o12"), *SMALL, "--views", ",".join(map(str, range(12)))]) == 0
+    line = next(s for s in capsys.readouterr().out.splitlines() if "training views" in s)
+    assert "..." not in line and line.endswith("train/r_11.png), 1 test views")
+
+
+def test_a_photo_the_run_read_and_no_longer_reads_is_named(tiny_scene, tmp_path, capsys):
+    # a frame pointed at another copy of its photo: the old name "was read then", the new one "is read now"
+    import shutil
+
+    scene = shutil.copytree(tiny_scene, tmp_path / "scene")
+    argv = [str(scene), "--out", str(tmp_path / "o"), *TINY]
+    assert main(argv) == 0
+    shutil.copy(scene / "train" / "r_0.png", scene / "train" / "copy.png")
+    poses = scene / "transforms_train.json"
+    poses.write_text(poses.read_text().replace('"./train/r_0"', '"./train/copy"'))
+    capsys.readouterr()
+    assert main(argv) == 2
+    assert ("holds a different run (scene files differ: train/copy.png is read now, not then and 2 more)"
+            in _one_error_line(capsys))

@@ -607,6 +607,14 @@ def test_a_scene_whose_files_changed_since_the_fit_is_rendered_with_a_warning(ru
     assert err == [f"senerf-render: warning: {run_dir / 'run.json'}: the scene's files changed since the fit "
                    "(test/r_1.png changed); its cameras and photos are read as they are now"]
     assert (tmp_path / "changed" / "rgb.gif").is_file()
+    # a photo the fit read that the scene no longer has, and how many more differ
+    _edit_json(run_dir / "run.json", lambda run: run["scene_files"].update({"train/gone.png": "1" * 16}))
+    assert main([str(run_dir), "--path", "test", "--out", str(tmp_path / "two"), "--quiet"]) == 0
+    assert "(test/r_1.png changed and 1 more); its cameras" in capsys.readouterr().err
+    _edit_json(run_dir / "run.json", lambda run: run["scene_files"].update(
+        {"test/r_1.png": recorded["test/r_1.png"]}))
+    assert main([str(run_dir), "--path", "test", "--out", str(tmp_path / "gone"), "--quiet"]) == 0
+    assert "(train/gone.png was read then, not now); its cameras" in capsys.readouterr().err
     # a run of some views only: the photos it did not read are not compared (no false warning)
     assert main([str(runs.st), "--path", "test", "--out", str(tmp_path / "st"), "--quiet", "--iteration", "0"]) == 0
     assert "warning" not in capsys.readouterr().err
@@ -615,3 +623,15 @@ def test_a_scene_whose_files_changed_since_the_fit_is_rendered_with_a_warning(ru
     _edit_json(run_dir / "run.json", lambda run: run.pop("scene_files"))
     assert main([str(run_dir), "--path", "test", "--out", str(tmp_path / "old"), "--quiet"]) == 0
     assert "warning" not in capsys.readouterr().err
+
+
+def test_only_the_photos_the_fit_read_are_hashed_again(runs, monkeypatch):
+    # cost, not output: a run of 3 views of 8 hashes its 3 + 3 test photos (and the pose files), not all 8
+    import senerf.data
+
+    seen = []
+    real = senerf.data.scene_file_digests
+    monkeypatch.setattr(senerf.data, "scene_file_digests", lambda scene, views=None: (seen.append(views),
+                                                                                      real(scene, views))[1])
+    run = load_fitted_run(runs.st)
+    assert len(seen) == 1 and sorted(seen[0]) == sorted(np.union1d(run.train_idx, run.test_idx).tolist())

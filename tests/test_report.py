@@ -142,3 +142,25 @@ def test_views_are_titled_with_their_photo_when_metrics_name_it(tmp_path, monkey
     plot_run_summary(metrics, tmp_path, tmp_path / "c.png", ground_truth=gt)
     shown = [t for t in titles if t.startswith("ground truth")]
     assert len(shown) == 3 and all(t.startswith("ground truth (...e/for/the/photos/IMG_000") for t in shown), shown
+
+
+def test_a_32_character_name_is_whole_and_a_list_of_the_wrong_length_is_ignored(tmp_path, monkeypatch):
+    import matplotlib.axes
+
+    titles = []
+    real = matplotlib.axes.Axes.set_title
+    monkeypatch.setattr(matplotlib.axes.Axes, "set_title", lambda ax, text, *a, **k: (titles.append(text),
+                                                                                       real(ax, text, *a, **k))[1])
+    metrics = _run(tmp_path)
+    metrics["test_views"] = [300 + k for k in range(5)]
+    gt = (lambda p: np.zeros((12, 12, 3)))
+    metrics["test_images"] = [f"photos/{k}/" + "x" * 15 + "_IMG.png" for k in range(5)]
+    assert {len(n) for n in metrics["test_images"]} == {32}   # at the limit: shown whole
+    plot_run_summary(metrics, tmp_path, tmp_path / "a.png", ground_truth=gt)
+    shown = [t for t in titles if t.startswith("ground truth")]
+    assert len(shown) == 3 and all(t[len("ground truth ("):-1] in metrics["test_images"] for t in shown), shown
+    titles.clear()
+    metrics["test_images"] = metrics["test_images"][:4]   # not one name per test view: the indices instead
+    plot_run_summary(metrics, tmp_path, tmp_path / "b.png", ground_truth=gt)
+    shown = [t for t in titles if t.startswith("ground truth")]
+    assert len(shown) == 3 and all(t.startswith("ground truth (image 30") for t in shown), shown

@@ -133,3 +133,37 @@ def test_each_loader_records_the_files_it_read_its_cameras_from(tmp_path):
 
     root = export_blender_scene(tmp_path / "s", n_train=3, n_val=1, n_test=2, width=8, height=8, seed=0)
     assert load_scene(root).source_files == tuple(root / f"transforms_{s}.json" for s in ("train", "val", "test"))
+
+
+def test_a_scene_read_through_a_symlinked_folder_keeps_its_names(tmp_path):
+    # The mutation audit: a resolved (realpath) root would name every file by its absolute path when the
+    # scene folder is reached through a link, as dataset folders often are.
+    from senerf.data import load_scene, scene_file_digests, view_names
+    from senerf.procedural.export import export_blender_scene
+
+    real = export_blender_scene(tmp_path / "real", n_train=3, n_val=0, n_test=1, width=8, height=8, seed=0)
+    (tmp_path / "link").symlink_to(real, target_is_directory=True)
+    via_link, direct = load_scene(tmp_path / "link"), load_scene(real)
+    assert view_names(via_link, [0, 3]) == ["train/r_0.png", "test/r_0.png"]
+    assert scene_file_digests(via_link) == scene_file_digests(direct)
+    assert "transforms_train.json" in scene_file_digests(via_link)
+
+
+def test_digests_cover_every_byte_of_a_file_longer_than_one_read(tmp_path):
+    import hashlib
+
+    from senerf.data.scene import _sha256_prefix
+
+    data = bytearray(np.random.default_rng(0).integers(0, 256, (1 << 21) + 1, dtype=np.uint8).tobytes())
+    (tmp_path / "big.bin").write_bytes(bytes(data))
+    assert _sha256_prefix(str(tmp_path / "big.bin")) == hashlib.sha256(bytes(data)).hexdigest()[:16]
+    data[-1] ^= 1   # the last byte, past two 1 MiB reads
+    (tmp_path / "big.bin").write_bytes(bytes(data))
+    assert _sha256_prefix(str(tmp_path / "big.bin")) == hashlib.sha256(bytes(data)).hexdigest()[:16]
+
+
+def test_changed_files_are_sorted_by_name_whatever_the_records_order():
+    from senerf.data import changed_files
+
+    assert changed_files({"b": "1", "a": "1"}, {"c": "1", "b": "2"}) == [
+        "a was read then, not now", "b changed", "c is read now, not then"]

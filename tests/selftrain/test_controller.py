@@ -556,3 +556,43 @@ def test_the_pseudo_views_labelling_shows_a_progress_bar(monkeypatch, capsys):
     err = capsys.readouterr().err
     assert "reliability" in err and f"{len(sims)}/{len(sims)}" in err
     np.testing.assert_array_equal(shown.weights, quiet.weights)
+
+
+def test_the_progress_setting_reaches_the_labelling_and_its_renders(tiny_scene, tmp_path, monkeypatch):
+    # The mutation audit: dropping `progress=` from the controller's call or from either render went unseen.
+    from senerf.selftrain import make_feature_extractor
+    from senerf.train import TrainConfig, build_field, choose_model
+
+    scene = tiny_scene
+    train_idx, test_idx = scene.splits["train"][:3], scene.splits["test"]
+    model = choose_model(scene, train_idx, {"n_samples": 8, "resolution": 16, "occupancy_resolution": 0},
+                         echo=lambda s: None)
+
+    class Stop(Exception):
+        pass
+
+    handed = []
+
+    def spy(*args, **kwargs):
+        handed.append(kwargs.get("progress"))
+        raise Stop
+
+    monkeypatch.setattr(controller_mod, "estimate_reliability", spy)
+    tcfg = TrainConfig(steps=2, batch_rays=32, warmup_steps=1, checkpoint_every=0)
+    for progress in (True, False):
+        with pytest.raises(Stop):
+            controller_mod.run_selftraining(scene, train_idx, test_idx, model, tcfg,
+                                            SelfTrainConfig(iterations=1, n_pseudo_per_input=1, features="daisy"),
+                                            tmp_path / f"run_{progress}", progress=progress, echo=lambda s: None)
+    assert handed == [True, False]
+    monkeypatch.undo()
+
+    rendered = []
+    real_render = controller_mod.render_views
+    monkeypatch.setattr(controller_mod, "render_views",
+                        lambda *a, **k: (rendered.append(k.get("progress")), real_render(*a, **k))[1])
+    pseudo_c2w = np.asarray(scene.c2w[train_idx[:1]], dtype=np.float64)
+    controller_mod.estimate_reliability(build_field(model), None, model, scene, train_idx, pseudo_c2w,
+                                        make_feature_extractor("daisy"), SelfTrainConfig(features="daisy"), 0.15,
+                                        progress=True)
+    assert rendered == [True, True]   # the known views' render and the pseudo views'
