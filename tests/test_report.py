@@ -118,49 +118,42 @@ def test_rows_without_an_integer_iteration_are_a_value_error(tmp_path):
         plot_run_summary(metrics, tmp_path, tmp_path / "s.png")
 
 
-def test_views_are_titled_with_their_photo_when_metrics_name_it(tmp_path, monkeypatch):
-    # Before, a view was titled "image 309" (its index among all the scene's views) while its photo was
-    # test/r_109.png and its render rgb_109.png (so at a325121).
+def _ground_truth_titles(tmp_path, monkeypatch, metrics, name: str) -> list[str]:
+    """The ground-truth panels' titles of ``plot_run_summary`` on ``metrics`` (set_title recorded)."""
     import matplotlib.axes
 
     titles = []
     real = matplotlib.axes.Axes.set_title
     monkeypatch.setattr(matplotlib.axes.Axes, "set_title", lambda ax, text, *a, **k: (titles.append(text),
                                                                                        real(ax, text, *a, **k))[1])
+    plot_run_summary(metrics, tmp_path, tmp_path / name, ground_truth=lambda p: np.zeros((12, 12, 3)))
+    monkeypatch.undo()
+    return [t for t in titles if t.startswith("ground truth")]
+
+
+def test_views_are_titled_with_their_photo_when_metrics_name_it(tmp_path, monkeypatch):
+    # Before, a view was titled "image 309" (its index among all the scene's views) while its photo was
+    # test/r_109.png and its render rgb_109.png (so at a325121).
     metrics = _run(tmp_path)
     metrics["test_views"] = [300 + k for k in range(5)]
-    gt = (lambda p: np.zeros((12, 12, 3)))
-    plot_run_summary(metrics, tmp_path, tmp_path / "a.png", ground_truth=gt)
-    assert "ground truth (image 300)" in titles            # no file names recorded: the index
-    titles.clear()
+    shown = _ground_truth_titles(tmp_path, monkeypatch, metrics, "a.png")
+    assert "ground truth (image 300)" in shown            # no file names recorded: the index
     metrics["test_images"] = [f"test/r_{k}.png" for k in range(5)]
-    plot_run_summary(metrics, tmp_path, tmp_path / "b.png", ground_truth=gt)
-    shown = [t for t in titles if t.startswith("ground truth")]
+    shown = _ground_truth_titles(tmp_path, monkeypatch, metrics, "b.png")
     assert len(shown) == 3 and all(t in {f"ground truth (test/r_{k}.png)" for k in range(5)} for t in shown)
-    titles.clear()   # a long path keeps its last 29 characters
+    # a long path keeps its last 29 characters
     metrics["test_images"] = [f"a/very/long/folder/name/for/the/photos/IMG_{k:04d}.JPG" for k in range(5)]
-    plot_run_summary(metrics, tmp_path, tmp_path / "c.png", ground_truth=gt)
-    shown = [t for t in titles if t.startswith("ground truth")]
+    shown = _ground_truth_titles(tmp_path, monkeypatch, metrics, "c.png")
     assert len(shown) == 3 and all(t.startswith("ground truth (...e/for/the/photos/IMG_000") for t in shown), shown
 
 
 def test_a_32_character_name_is_whole_and_a_list_of_the_wrong_length_is_ignored(tmp_path, monkeypatch):
-    import matplotlib.axes
-
-    titles = []
-    real = matplotlib.axes.Axes.set_title
-    monkeypatch.setattr(matplotlib.axes.Axes, "set_title", lambda ax, text, *a, **k: (titles.append(text),
-                                                                                       real(ax, text, *a, **k))[1])
     metrics = _run(tmp_path)
     metrics["test_views"] = [300 + k for k in range(5)]
-    gt = (lambda p: np.zeros((12, 12, 3)))
     metrics["test_images"] = [f"photos/{k}/" + "x" * 15 + "_IMG.png" for k in range(5)]
     assert {len(n) for n in metrics["test_images"]} == {32}   # at the limit: shown whole
-    plot_run_summary(metrics, tmp_path, tmp_path / "a.png", ground_truth=gt)
-    shown = [t for t in titles if t.startswith("ground truth")]
+    shown = _ground_truth_titles(tmp_path, monkeypatch, metrics, "a.png")
     assert len(shown) == 3 and all(t[len("ground truth ("):-1] in metrics["test_images"] for t in shown), shown
-    titles.clear()
     metrics["test_images"] = metrics["test_images"][:4]   # not one name per test view: the indices instead
-    plot_run_summary(metrics, tmp_path, tmp_path / "b.png", ground_truth=gt)
-    shown = [t for t in titles if t.startswith("ground truth")]
+    shown = _ground_truth_titles(tmp_path, monkeypatch, metrics, "b.png")
     assert len(shown) == 3 and all(t.startswith("ground truth (image 30") for t in shown), shown
