@@ -344,7 +344,8 @@ def test_grayscale_png_is_accepted_and_fits(scene_copy, tmp_path, capsys):
     gray = np.round(rgba[..., :3].astype(np.float64).mean(axis=-1)).astype(np.uint8)
     iio.imwrite(p, gray)
     assert iio.imread(p).ndim == 2
-    scene = load_scene(scene_copy)
+    with pytest.warns(UserWarning, match=r"1 of 9 photos have no alpha channel \(frames\[1\]\.file_path: r_1\.png\)"):
+        scene = load_scene(scene_copy)
     k = 1  # train frame 1 is array index 1
     assert np.allclose(scene.rgb[k], (gray / 255.0)[..., None], atol=1e-6)
     assert np.all(scene.alpha[k] == 1.0)  # no alpha channel: opaque
@@ -365,7 +366,8 @@ def test_16bit_png_is_accepted_with_full_precision_and_fits(scene_copy, tmp_path
     g = scene_copy / "train" / "r_0.png"
     grey16 = (rgba16[..., 0].astype(np.uint32) * 0 + 40000).astype(np.uint16)
     assert cv2.imwrite(str(g), grey16)
-    scene = load_scene(scene_copy)
+    with pytest.warns(UserWarning, match=r"1 of 9 photos have no alpha channel \(frames\[0\]\.file_path: r_0\.png\)"):
+        scene = load_scene(scene_copy)
     assert np.allclose(scene.rgb[0], 40000 / 65535.0, atol=1e-6)
     _fit_ok(scene_copy, tmp_path, capsys)
 
@@ -376,7 +378,8 @@ def test_rgb_frame_in_an_rgba_scene_is_opaque_and_fits(scene_copy, tmp_path, cap
     p = scene_copy / "train" / "r_0.png"
     rgba = iio.imread(p)
     iio.imwrite(p, rgba[..., :3])
-    scene = load_scene(scene_copy)
+    with pytest.warns(UserWarning, match=r"1 of 9 photos have no alpha channel .* taken as fully opaque"):
+        scene = load_scene(scene_copy)
     assert scene.alpha is not None and np.all(scene.alpha[0] == 1.0) and scene.alpha[1].min() == 0.0
     assert np.allclose(scene.rgb[0], rgba[..., :3] / 255.0, atol=1e-6)
     _fit_ok(scene_copy, tmp_path, capsys)
@@ -396,7 +399,8 @@ def test_rgba_frame_in_an_rgb_scene_is_accepted_and_fits(scene_copy, tmp_path, c
     for png in scene_copy.rglob("r_*.png"):
         if png.name != "r_2.png" or png.parent.name != "train":
             iio.imwrite(png, iio.imread(png)[..., :3])
-    scene = load_scene(scene_copy)
+    with pytest.warns(UserWarning, match=r"8 of 9 photos have no alpha channel"):
+        scene = load_scene(scene_copy)
     assert scene.alpha is not None and scene.alpha[2].min() == 0.0  # the RGBA frame keeps its alpha
     assert np.all(scene.alpha[np.arange(scene.n_images) != 2] == 1.0)  # the RGB frames are opaque
     _fit_ok(scene_copy, tmp_path, capsys)
