@@ -98,6 +98,11 @@ def _test_split(scene: Scene, protocol: str) -> np.ndarray:
     return test
 
 
+def _evenly(n: int, k: int) -> np.ndarray:
+    """``k`` of ``n`` positions spread evenly: ``round(linspace(0, n - 1, k))`` (half to even), int64 ``(k,)``."""
+    return np.round(np.linspace(0, n - 1, k)).astype(np.int64)
+
+
 def _is_split_scene(scene: Scene) -> bool:
     """Blender-style: views index the train split (an object scene with a val or test split)."""
     return scene.kind == "object" and (scene.splits["val"].size > 0 or scene.splits["test"].size > 0)
@@ -154,8 +159,7 @@ def fewshot_split(scene: Scene, protocol: str = "extreme", views=None, n_views=N
     if protocol == "spread":
         test = _test_split(scene, protocol)
         k = _n_views(n_views, 3, n_train, "train-split views")
-        pick = np.round(np.linspace(0, n_train - 1, k)).astype(np.int64)
-        return train_split[pick], test
+        return train_split[_evenly(n_train, k)], test
     if protocol == "all":
         if n_train == 0:
             raise InputError(f"scene {scene.name!r} has an empty train split", field="--protocol")
@@ -169,8 +173,7 @@ def fewshot_split(scene: Scene, protocol: str = "extreme", views=None, n_views=N
         if rest.size == 0:
             raise InputError(f"scene {scene.name!r} has too few images ({n}) for the LLFF hold-out", field="--protocol")
         k = _n_views(n_views, 3, int(rest.size), "non-held-out images")
-        pick = np.round(np.linspace(0, rest.size - 1, k)).astype(np.int64)
-        return rest[pick], test
+        return rest[_evenly(int(rest.size), k)], test
 
     # protocol == "views"
     if views is None:
