@@ -114,6 +114,25 @@ def _views(metrics: dict, key: str, path: Path, n_images: int) -> np.ndarray:
     return np.asarray(views, dtype=np.int64)
 
 
+def _views_by_photo(metrics: dict, key: str, path: Path, scene, idx: np.ndarray) -> np.ndarray:
+    """``idx``, or, when ``metrics`` names the views' photos (``train_images`` / ``test_images``; runs made
+    before senerf-fit recorded them have indices only) and the scene now holds them at other indices (a
+    split file added since the fit), the indices of those photos; a photo the scene no longer has is an
+    :class:`InputError` naming it."""
+    from senerf.data import view_names
+
+    names = metrics.get(key)
+    if not (isinstance(names, list) and len(names) == idx.size and all(isinstance(n, str) for n in names)):
+        return idx   # a run from before the names were recorded: the indices are all there is
+    if view_names(scene, idx) == names:
+        return idx
+    where = {name: i for i, name in enumerate(view_names(scene, range(scene.n_images)))}
+    missing = [name for name in names if name not in where]
+    if missing:
+        raise InputError(f"the fit's photo {missing[0]} is not in the scene any more", file=path, field=key)
+    return np.asarray([where[name] for name in names], dtype=np.int64)
+
+
 def _model(run: dict, run_path: Path):
     from senerf.train import ModelConfig
 
@@ -183,8 +202,10 @@ def load_fitted_run(folder, iteration: int | None = None, device: str = "cpu") -
     if list(scene.size) != resolution:
         raise InputError(f"the scene is {scene.size[0]}x{scene.size[1]} (H x W) at downscale {downscale:g}; the run "
                          f"was fitted at {resolution!r}"[:200], file=scene_dir)
-    train_idx = _views(metrics, "train_views", metrics_path, scene.n_images)
-    test_idx = _views(metrics, "test_views", metrics_path, scene.n_images)
+    train_idx = _views_by_photo(metrics, "train_images", metrics_path, scene,
+                                _views(metrics, "train_views", metrics_path, scene.n_images))
+    test_idx = _views_by_photo(metrics, "test_images", metrics_path, scene,
+                               _views(metrics, "test_views", metrics_path, scene.n_images))
     _warn_if_files_changed(run.get("scene_files"), scene, run_path)
     field, occupancy = _load_field(folder, model, k, seed, steps, device)
     return FittedRun(folder, scene, model, field, occupancy, k, train_idx, test_idx, seed, steps, tuple(done))

@@ -635,3 +635,24 @@ def test_only_the_photos_the_fit_read_are_hashed_again(runs, monkeypatch):
                                                                                       real(scene, views))[1])
     run = load_fitted_run(runs.st)
     assert len(seen) == 1 and sorted(seen[0]) == sorted(np.union1d(run.train_idx, run.test_idx).tolist())
+
+
+def test_views_are_found_by_their_photos_when_the_scene_moved_them(runs, tmp_path, capsys):
+    # Before, a view was its index: a split file added to the scene after the fit (shifting every index) made
+    # senerf-render orbit and score other photos than the fit's (so at 3b4a3f7).
+    run_dir = tmp_path / "run"
+    shutil.copytree(runs.st, run_dir, ignore=shutil.ignore_patterns("render"))
+    metrics = json.loads((run_dir / "metrics.json").read_text())
+    assert metrics["train_views"] == [0, 1, 3] and metrics["train_images"] == [
+        "train/r_0.png", "train/r_1.png", "train/r_3.png"]
+    _edit_json(run_dir / "metrics.json", lambda m: m.update(train_views=[2, 4, 0], test_views=[0, 1, 2]))
+    run = load_fitted_run(run_dir)   # as if the indices had moved: the photos' names find the views
+    assert run.train_idx.tolist() == [0, 1, 3] and run.test_idx.tolist() == [5, 6, 7]
+    assert main([str(run_dir), "--path", "test", "--iteration", "1", "--out", str(tmp_path / "t"), "--quiet"]) == 0
+    for png in sorted((run_dir / "iter_1" / "test").glob("rgb_*.png")):   # the renders the fit scored
+        np.testing.assert_array_equal(iio.imread(tmp_path / "t" / png.name), iio.imread(png))
+    _edit_json(run_dir / "metrics.json", lambda m: m.update(train_images=["train/r_0.png", "train/gone.png",
+                                                                          "train/r_3.png"]))
+    assert main([str(run_dir), "--out", str(tmp_path / "o"), "--quiet"]) == 2
+    assert f"{run_dir / 'metrics.json'}: train_images: the fit's photo train/gone.png is not in the scene any more" \
+        in _error(capsys)
