@@ -276,7 +276,7 @@ def _scene_files(scene, train_idx, test_idx, oracle: bool) -> dict:
 def _files_changed(old: dict, identity: dict) -> str:
     """One line saying which of the scene's files changed since ``old`` was recorded, or ``''`` (also when
     ``old`` predates the record: a run.json written before senerf-fit hashed the files cannot tell)."""
-    from senerf.data.scene import changed_files
+    from senerf.data import changed_files
     from senerf.train import differences_text
 
     then, now = old.get("scene_files"), identity.get("scene_files")

@@ -216,16 +216,16 @@ def _warn_if_files_changed(recorded, scene, run_path: Path) -> None:
     made before senerf-fit recorded them are not checked): the cameras then come from the files as they are
     now, which may not be the frame the field was fitted in."""
     from senerf.data import changed_files, scene_file_digests, view_names
+    from senerf.train import differences_text
 
     if not isinstance(recorded, dict):
         return
     views = [i for i, name in enumerate(view_names(scene, range(scene.n_images))) if name in recorded]
     now = scene_file_digests(scene, views)   # the photos the fit read (and the pose and camera files)
     lines = changed_files(recorded, {name: digest for name, digest in now.items() if name in recorded})
-    if lines:
-        more = f" and {len(lines) - 1} more" if len(lines) > 1 else ""
-        warnings.warn(f"{run_path}: the scene's files changed since the fit ({lines[0]}{more}); its cameras and "
-                      "photos are read as they are now", stacklevel=3)
+    if lines:   # the first difference and how many more, as senerf-fit's refusal says it
+        warnings.warn(f"{run_path}: the scene's files changed since the fit ({differences_text(lines)}); its "
+                      "cameras and photos are read as they are now", stacklevel=3)
 
 
 def _load_field(folder: Path, model, k: int, seed: int, steps: int, device: str):
