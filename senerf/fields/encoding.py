@@ -114,5 +114,5 @@ def positional_encoding(x: torch.Tensor, n_freqs: int, weights: torch.Tensor | N
         if weights.shape != (n_freqs,):
             raise ValueError(f"weights: expected shape ({n_freqs},), got {tuple(weights.shape)}")
         enc = enc * weights.to(enc)[None, :, None]
-    enc = enc.reshape(x.shape[0], -1)
+    enc = enc.reshape(x.shape[0], 2 * n_freqs * x.shape[1])   # explicit: N = 0 (no sample kept) is valid
     return torch.cat([x, enc], dim=-1) if include_input else enc

@@ -154,4 +154,4 @@ def plane_interp_reference(planes: list[torch.Tensor], u: torch.Tensor, pairs=PA
                           align_corners=True)                                  # (1, F, N, 1)
         feats.append(s[0, :, :, 0].t())
     n_s = len(planes) // n_p
-    return torch.stack(feats, dim=1).view(u.shape[0], n_s, n_p, -1)
+    return torch.stack(feats, dim=1).view(u.shape[0], n_s, n_p, planes[0].shape[0])

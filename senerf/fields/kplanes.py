@@ -115,7 +115,7 @@ class KPlanesField(RadianceField):
         else:
             f = plane_interp(self.table, u, self.resolutions, self.offsets)
         f = f[:, :, 0] * f[:, :, 1] * f[:, :, 2]                                 # (N, S, F)
-        return f.reshape(xyz.shape[0], -1), inside
+        return f.reshape(xyz.shape[0], len(self.resolutions) * self.n_features), inside   # N = 0 is valid
 
     def _decode(self, xyz: torch.Tensor, dirs: torch.Tensor | None, with_rgb: bool):
         """Plane features for all points at once (one kernel call, one table-sized gradient buffer), then

@@ -98,3 +98,54 @@ def test_kplanes_density_shift_multiplies_density_by_exp_shift():
     sig = [KPlanesField([[-1.0] * 3, [1.0] * 3], resolution=6, n_features=4, density_shift=s,
                         generator=torch.Generator().manual_seed(0)).density(xyz).detach() for s in (0.0, 0.7)]
     torch.testing.assert_close(sig[1] / sig[0], torch.full((50,), math.exp(0.7)), rtol=1e-5, atol=0)
+
+
+def _fields():
+    gen = torch.Generator().manual_seed(0)
+    box = [[-1.0] * 3, [1.0] * 3]
+    return {
+        "kplanes": KPlanesField(box, resolution=8, n_features=4, multires=(1, 2), hidden=8, geo_features=4,
+                                sh_degree=2, generator=gen),
+        "kplanes-gather": KPlanesField(box, resolution=8, n_features=4, multires=(1,), hidden=8, geo_features=4,
+                                       sh_degree=2, generator=gen, backend="gather"),
+        "kplanes-grid_sample": KPlanesField(box, resolution=8, n_features=4, multires=(1, 2), hidden=8,
+                                            geo_features=4, sh_degree=2, generator=gen, backend="grid_sample"),
+        "nerf": NeRFField(aabb=box, n_freqs=4, hidden=16, n_layers=2, generator=gen),
+        "nerf-unbounded-annealed": NeRFField(aabb=None, n_freqs=4, hidden=16, n_layers=2, view_dependent=False,
+                                             anneal_steps=10, generator=gen),
+    }
+
+
+@pytest.mark.parametrize("name", sorted(_fields()))
+def test_every_field_takes_zero_points(name):
+    # An occupancy grid can drop every sample of a chunk of rays (all in empty space): the field then gets
+    # (0, 3) points.  The NeRF field's positional encoding once failed there (reshape(0, -1) is ambiguous),
+    # which crashed `senerf-fit --field nerf` on lego Extreme at its first test-view render.
+    f = _fields()[name]
+    xyz = torch.zeros(0, 3, requires_grad=True)
+    dirs = torch.zeros(0, 3)
+    sigma, rgb = f(xyz, dirs)
+    assert sigma.shape == (0,) and rgb.shape == (0, 3)
+    assert f.density(xyz).shape == (0,)
+    (sigma.sum() + rgb.sum()).backward()   # a training step whose batch kept no sample still steps
+    assert xyz.grad.shape == (0, 3)
+
+
+@pytest.mark.parametrize("name", sorted(_fields()))
+def test_rendering_through_a_grid_with_no_occupied_cell_gives_the_background(name):
+    from senerf.fields import OccupancyGrid, render_rays
+    f = _fields()[name]
+    grid = OccupancyGrid([[-1.0] * 3, [1.0] * 3], resolution=4)
+    grid.mask.zero_()
+    o = torch.tensor([[0.0, 0.0, -3.0], [0.5, 0.0, -3.0]])
+    d = torch.tensor([[0.0, 0.0, 1.0], [0.0, 0.0, 1.0]])
+    out = render_rays(f, o, d, torch.full((2,), 2.0), torch.full((2,), 4.0), 8, torch.Generator().manual_seed(0),
+                      background=torch.tensor([0.2, 0.4, 0.6]), occupancy=grid)
+    assert torch.equal(out["acc"], torch.zeros(2))
+    assert torch.allclose(out["rgb"], torch.tensor([[0.2, 0.4, 0.6]] * 2))
+
+
+def test_the_grid_sample_reference_takes_zero_points():
+    from senerf.fields.interp import plane_interp_reference
+    planes = [torch.rand(4, 5, 5) for _ in range(6)]   # two scales x three planes, four features
+    assert plane_interp_reference(planes, torch.zeros(0, 3)).shape == (0, 2, 3, 4)
