@@ -29,6 +29,7 @@ Convention:
 from __future__ import annotations
 
 import math
+import warnings
 from collections import OrderedDict
 from dataclasses import dataclass
 
@@ -39,7 +40,8 @@ from ..errors import InputError
 from ..geometry import Intrinsics
 
 __all__ = ["Distortion", "distort_pixels", "undistorted_intrinsics", "undistortion_maps", "undistort_image",
-           "DistortionError", "Undistorter", "PERSPECTIVE_MODELS", "FISHEYE_MODELS"]
+           "photo_coverage", "DistortionError", "Undistorter", "PERSPECTIVE_MODELS", "FISHEYE_MODELS",
+           "COVERAGE_WARN"]
 
 #: COLMAP's camera model names that senerf reads (the JSON formats' ``camera_model`` and COLMAP's own):
 #: pinholes and the OpenCV radial-tangential family, then the fisheyes (OpenCV's equidistant family).
@@ -57,6 +59,10 @@ _BISECTIONS = 40
 # The focal search keeps every border sample within the photo's pixel centres exactly; the full float32 maps may
 # then fall this far (pixels) outside them, float32's rounding at 10^4 pixels being 1e-3.
 _MAP_TOL = 1e-2
+#: A photo whose pinhole view keeps less than this share of it gets a warning when the scene loads: a lens model
+#: that folds back inside the photo (often a coefficient with the wrong sign or scale) or sees wider than a
+#: pinhole image can hold.
+COVERAGE_WARN = 0.5
 
 
 class DistortionError(ValueError):
@@ -218,6 +224,41 @@ def undistorted_intrinsics(k_photo: Intrinsics, distortion: Distortion) -> Intri
     return _pinhole(k_photo, hi)
 
 
+def photo_coverage(k_photo: Intrinsics, distortion: Distortion, k_pinhole: Intrinsics) -> float:
+    """The share of a photo that its pinhole view samples.
+
+    Args:
+        k_photo: the photo's intrinsics.
+        distortion: its lens distortion.
+        k_pinhole: the pinhole camera it is resampled onto (:func:`undistorted_intrinsics`), same size.
+
+    Returns:
+        The area, in photo pixels, enclosed by where the pinhole view's border pixel centres land in the photo,
+        over the area ``(W - 1) x (H - 1)`` enclosed by the photo's own border pixel centres: 1 for an identity
+        distortion, less where the pinhole view crops the photo (as it does wherever a barrel lens's corners
+        bend inwards, ~0.96 for ``k1 = -0.1`` at 50 degrees across); NaN for a photo one pixel across.
+
+    Example:
+        >>> k = Intrinsics(500, 500, 320, 240, 640, 480)
+        >>> round(photo_coverage(k, Distortion("opencv", (0, 0, 0, 0, 0)), k), 6)
+        1.0
+    """
+    if k_pinhole.size != k_photo.size:
+        raise ValueError(f"photo_coverage: sizes differ, {k_pinhole.size} and {k_photo.size}")
+    width, height = k_photo.width, k_photo.height
+    if width < 2 or height < 2:
+        return float("nan")
+    us, vs = np.arange(width) + 0.5, np.arange(height) + 0.5
+    border = np.concatenate([  # the pinhole view's outermost pixel centres, once round, clockwise on screen
+        np.stack([us, np.full(width, 0.5)], 1), np.stack([np.full(height, width - 0.5), vs], 1),
+        np.stack([us[::-1], np.full(width, height - 0.5)], 1), np.stack([np.full(height, 0.5), vs[::-1]], 1),
+    ])
+    uv = distort_pixels(border, k_pinhole, k_photo, distortion)
+    u, v = uv[:, 0], uv[:, 1]
+    area = 0.5 * abs(float(np.dot(u, np.roll(v, -1)) - np.dot(v, np.roll(u, -1))))   # shoelace
+    return area / ((width - 1) * (height - 1))
+
+
 def _check_maps(map_x: np.ndarray, map_y: np.ndarray, k_photo: Intrinsics) -> None:
     """``DistortionError`` unless the maps (OpenCV pixels) stay on the photo's pixel centres and do not fold."""
     if not _on_centres(map_x + 0.5, map_y + 0.5, k_photo, _MAP_TOL):
@@ -314,6 +355,7 @@ class Undistorter:
         self.photo_camera = photo_camera
         self.pinhole = {}
         self._maps = OrderedDict()  # (k_photo, distortion) -> (k_pinhole, maps)
+        self._warned = False   # one coverage warning per load
 
     def _camera(self, e: dict, k_photo: Intrinsics) -> tuple:
         key = (k_photo, e["distortion"])
@@ -326,10 +368,28 @@ class Undistorter:
         except DistortionError as exc:
             raise InputError(f"cannot undistort {e['path'].name}: {exc}", file=e.get("distortion_file", e["file"]),
                              field=e["distortion_field"]) from None
+        self._warn_coverage(e, k_photo, k_pinhole)
         self._maps[key] = entry
         while len(self._maps) > _MAPS_KEPT:
             self._maps.popitem(last=False)
         return entry
+
+    def _warn_coverage(self, e: dict, k_photo: Intrinsics, k_pinhole: Intrinsics) -> None:
+        """Warn (once per load) when the first photo's pinhole view keeps less than :data:`COVERAGE_WARN` of it."""
+        if self._warned:
+            return
+        share = photo_coverage(k_photo, e["distortion"], k_pinhole)
+        if not share < COVERAGE_WARN:
+            return
+        self._warned = True
+        probe = _probe_uv(k_pinhole.width, k_pinhole.height)   # the view at the 80-degree cap: the lens is too wide
+        off_axis = np.hypot((probe[:, 0] - k_pinhole.cx) / k_pinhole.fx, (probe[:, 1] - k_pinhole.cy) / k_pinhole.fy)
+        wide = math.degrees(math.atan(off_axis.max())) > _MAX_OFF_AXIS_DEG - 1e-6
+        why = ("the lens sees wider than a pinhole view can hold (160 degrees across)" if wide else
+               "its lens model folds back inside the photo; check the coefficients' signs and scale")
+        warnings.warn(f"{e.get('distortion_file', e['file'])}: undistorting {e['path'].name} keeps {share:.0%} of "
+                      f"the photo ({e['distortion_field']}: {e['distortion'].model} {tuple(e['distortion'].coeffs)}); "
+                      f"{why}", stacklevel=4)
 
     def cameras(self, height: int, width: int) -> list:
         """After loading: each view's camera at the decoded size ``(height, width)``, the pinhole one where the

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from senerf.data import Distortion, distort_pixels, undistort_image, undistorted_intrinsics, undistortion_maps
-from senerf.data.undistort import DistortionError
+from senerf.data.undistort import COVERAGE_WARN, DistortionError, photo_coverage
 from senerf.geometry import Intrinsics
 
 K_PHOTO = Intrinsics(160.0, 150.0, 100.3, 79.6, 200, 160)
@@ -529,3 +529,75 @@ def test_every_named_camera_model_is_read(tmp_path, writers, camera_model, coeff
     meta = dict(_photo_meta(), camera_model=camera_model, **coeffs)
     scene = load_scene(writers.ngp(tmp_path / "n", meta_extra=meta, image=_photo_writer(CASES["barrel"])))
     assert scene.intrinsics == (K_PHOTO if expected is None else undistorted_intrinsics(K_PHOTO, expected))
+
+
+# --- how much of the photo the pinhole view keeps, and the warning when it is little -----------------------------
+
+def test_photo_coverage_of_a_zoomed_pinhole_is_one_over_the_zoom_squared():
+    # golden by hand: with no distortion a pinhole of focal s f samples the photo's centre (W-1)/s x (H-1)/s
+    d = Distortion("opencv", (0.0, 0.0, 0.0, 0.0, 0.0))
+    k = Intrinsics(160.0, 150.0, 100.0, 80.0, 201, 161)
+    for s in (1.0, 2.0, 4.0):
+        assert photo_coverage(k, d, _scaled(k, s)) == pytest.approx(1.0 / s ** 2, rel=1e-12)
+
+
+@pytest.mark.parametrize("name", sorted(CASES))
+def test_photo_coverage_matches_a_count_of_photo_pixels_inside_the_view(name):
+    # a different method: undistort every photo pixel centre with this file's own Newton solver, project it with
+    # the pinhole camera, and count those landing within the pinhole's outermost pixel centres
+    d = CASES[name]
+    k_pin = undistorted_intrinsics(K_PHOTO, d)
+    step = 0.25   # a midpoint grid over the photo's pixel-centre box, [0.5, W - 0.5] x [0.5, H - 0.5]
+    u, v = np.meshgrid(0.5 + step * (np.arange(round((K_PHOTO.width - 1) / step)) + 0.5),
+                       0.5 + step * (np.arange(round((K_PHOTO.height - 1) / step)) + 0.5))
+    x, y = undistort_normalised((u - K_PHOTO.cx) / K_PHOTO.fx, (v - K_PHOTO.cy) / K_PHOTO.fy, d)
+    pu, pv = k_pin.fx * x + k_pin.cx, k_pin.fy * y + k_pin.cy
+    inside = (pu >= 0.5) & (pu <= k_pin.width - 0.5) & (pv >= 0.5) & (pv <= k_pin.height - 0.5)
+    assert photo_coverage(K_PHOTO, d, k_pin) == pytest.approx(inside.mean(), abs=2e-3)
+
+
+def test_photo_coverage_of_one_pixel_wide_photos_is_nan():
+    k = Intrinsics(5.0, 5.0, 0.5, 3.5, 1, 7)
+    assert math.isnan(photo_coverage(k, CASES["barrel"], undistorted_intrinsics(k, CASES["barrel"])))
+
+
+def _coverage_warnings(record) -> list:
+    return [str(w.message) for w in record if "of the photo" in str(w.message)]
+
+
+def test_a_lens_model_folding_inside_the_photo_warns_once_naming_file_and_field(tmp_path, writers):
+    from senerf.data import load_scene
+    d = Distortion("opencv", (-0.9, 0.0, 0.0, 0.0, 0.0))   # folds at r_d = 0.365; the photo reaches 0.63
+    assert photo_coverage(K_PHOTO, d, undistorted_intrinsics(K_PHOTO, d)) < COVERAGE_WARN
+    root = writers.ngp(tmp_path / "n", meta_extra=_photo_meta(d), image=lambda seed: np.full((160, 200, 3), 99, np.uint8))
+    with pytest.warns(UserWarning) as record:
+        load_scene(root)
+    lines = _coverage_warnings(record)
+    assert len(lines) == 1, lines   # three frames, one camera: one warning
+    assert lines[0].startswith(f"{root / 'transforms.json'}: undistorting f_0.png keeps 34% of the photo (k1: opencv")
+    assert "folds back" in lines[0] and "signs and scale" in lines[0]
+
+
+def test_a_fisheye_wider_than_a_pinhole_view_warns_that_it_is_too_wide(tmp_path, writers):
+    from senerf.data import load_scene
+    d = Distortion("fisheye", (0.0, 0.0, 0.0, 0.0))
+    k = Intrinsics(20.0, 20.0, 50.0, 50.0, 100, 100)   # an equidistant fisheye 140 degrees off axis at the corners
+    meta = {"fl_x": 20.0, "fl_y": 20.0, "cx": 50.0, "cy": 50.0, "w": 100, "h": 100, "camera_model": "OPENCV_FISHEYE",
+            "k1": 0.0, "k2": 0.0, "k3": 0.0, "k4": 0.0}
+    assert photo_coverage(k, d, undistorted_intrinsics(k, d)) < COVERAGE_WARN
+    root = writers.ngp(tmp_path / "n", meta_extra=meta, image=lambda seed: np.full((100, 100, 3), 99, np.uint8))
+    with pytest.warns(UserWarning) as record:
+        load_scene(root)
+    (line,) = _coverage_warnings(record)
+    assert "wider than a pinhole view can hold" in line and "folds" not in line
+
+
+@pytest.mark.parametrize("name", sorted(CASES))
+def test_ordinary_lenses_load_without_a_coverage_warning(tmp_path, writers, name):
+    import warnings
+    from senerf.data import load_scene
+    d = CASES[name]
+    with warnings.catch_warnings(record=True) as record:
+        warnings.simplefilter("always")
+        load_scene(writers.ngp(tmp_path / "n", meta_extra=_photo_meta(d), image=_photo_writer(d)))
+    assert _coverage_warnings(record) == []
