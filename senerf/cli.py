@@ -84,8 +84,9 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--device", default="cpu", help="cpu or cuda")
     t.add_argument("--seed", type=int_flag("--seed", allow_zero=True, maximum=SEED_MAX), default=0)
     m = p.add_argument_group("model overrides (default: chosen from the scene and printed)")
-    m.add_argument("--field", choices=("kplanes", "nerf"))
-    m.add_argument("--resolution", type=int_flag("--resolution", minimum=2), help="base plane resolution")
+    m.add_argument("--field", choices=("kplanes", "nerf"),
+                   help="kplanes (default) or nerf (an MLP with frequency annealing; BENCHMARKS.md has both on lego)")
+    m.add_argument("--resolution", type=int_flag("--resolution", minimum=2), help="base plane resolution (K-Planes)")
     m.add_argument("--samples", type=int_flag("--samples"), help="samples per ray")
     m.add_argument("--hidden", type=int_flag("--hidden"), help="width of the K-Planes MLPs (default 32)")
     m.add_argument("--aabb", type=float_flag("--aabb", positive=True),
@@ -408,8 +409,20 @@ def _selftrain_available():
     return (SelfTrainConfig, run_selftraining), None
 
 
+def _check_field_flags(args) -> None:
+    """:class:`InputError` for a K-Planes setting given with ``--field nerf``, which would be ignored."""
+    if args.field == "nerf":
+        for flag, value in (("--resolution", args.resolution), ("--hidden", args.hidden)):
+            if value:
+                from senerf.train import nerf_description
+
+                raise InputError(f"sets the K-Planes field; --field nerf has no such setting (its MLP is fixed: "
+                                 f"{nerf_description()})", field=flag)
+
+
 def _run(args, argv) -> int:
     device = check_device(args.device)   # before the demo writes its scene
+    _check_field_flags(args)
     if args.demo:
         try:
             from senerf.demo import run_demo

@@ -252,6 +252,20 @@ def test_bad_model_and_size_settings_are_refused_before_anything_is_written(tiny
     assert not out.exists()
 
 
+@pytest.mark.parametrize("flags, needle", [
+    (["--hidden", "64"], "--hidden: sets the K-Planes field; --field nerf has no such setting (its MLP is fixed: 4 "
+                         "layers x 128, 10 frequency bands"),
+    (["--resolution", "32"], "--resolution: sets the K-Planes field; --field nerf has no such setting"),
+])
+def test_k_planes_settings_with_the_nerf_field_are_refused(tiny_scene, tmp_path, capsys, flags, needle):
+    # They were ignored without a word (so at 64a97d5).
+    out = tmp_path / "o"
+    small = [a for a in SMALL if a not in ("--resolution", "8")]
+    assert main([str(tiny_scene), "--out", str(out), "--protocol", "all", *small, "--field", "nerf", *flags]) == 2
+    assert needle in _one_error_line(capsys)
+    assert not out.exists()
+
+
 @pytest.mark.parametrize("position, needle", [
     (0.0, "all stand at one camera centre"),     # a tripod pan: no parallax (math.log(0) crashed, so at 71d19d4)
     (1e300, "the cameras' box cannot be computed"),  # norms overflow

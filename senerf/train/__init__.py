@@ -6,7 +6,7 @@ Public API (see DESIGN.md): :class:`TrainConfig`, :class:`ModelConfig`, :func:`c
 """
 
 from .checkpoint import atomic_write_bytes, atomic_write_text, load_checkpoint, save_checkpoint
-from .config import (PRESETS, ModelConfig, TrainConfig, build_field, camera_aabb, choose_model,
+from .config import (PRESETS, ModelConfig, TrainConfig, build_field, camera_aabb, choose_model, nerf_description,
                      config_to_dict, differences_text, preset_train_config,
                      settings_differences)
 from .evaluate import depth_to_color, eval_images, evaluate, render_views, write_png
@@ -15,7 +15,7 @@ from .metrics import LPIPS_UNAVAILABLE, mse, psnr, ssim
 from .rays import RayBatchSource, camera_rays, per_view_intrinsics, ray_aabb_bounds, ray_dist_to_z_depth
 
 __all__ = [
-    "TrainConfig", "ModelConfig", "PRESETS", "preset_train_config", "choose_model", "build_field",
+    "TrainConfig", "ModelConfig", "PRESETS", "preset_train_config", "choose_model", "nerf_description", "build_field",
     "camera_aabb", "config_to_dict", "settings_differences", "differences_text",
     "RayBatchSource", "camera_rays", "per_view_intrinsics", "ray_aabb_bounds", "ray_dist_to_z_depth",
     "train_field", "TrainResult", "lr_factor", "make_occupancy", "background_color", "load_state_keeping_box",

@@ -24,6 +24,7 @@ __all__ = [
     "PRESETS",
     "preset_train_config",
     "choose_model",
+    "nerf_description",
     "camera_aabb",
     "config_to_dict",
     "settings_differences",
@@ -33,6 +34,14 @@ __all__ = [
 
 _BACKGROUNDS = ("random", "white", "black")
 _FIELDS = ("kplanes", "nerf")
+# The NeRF field senerf builds (``--field nerf``): its MLP and positional encoding are fixed.
+NERF_FREQS, NERF_HIDDEN, NERF_LAYERS = 10, 128, 4
+
+
+def nerf_description() -> str:
+    """One line saying what ``--field nerf`` builds (:func:`build_field`)."""
+    return (f"{NERF_LAYERS} layers x {NERF_HIDDEN}, {NERF_FREQS} frequency bands annealed over the first quarter "
+            "of each training")
 
 
 def is_device_name(name) -> bool:
@@ -435,9 +444,16 @@ def choose_model(scene, train_idx, overrides: Mapping[str, Any] | None = None,
         cfg = ModelConfig(**cfg_values)
     except TypeError as exc:  # pragma: no cover - names are checked above
         raise InputError(str(exc), field="overrides") from None
+    if cfg.field == "nerf":   # the plane resolution does not apply; say what the MLP is instead
+        why["field"] = f"NeRF MLP, {nerf_description()}"
+        why.pop("resolution", None)
     for key in ("field", "ndc", "aabb", "near", "resolution", "n_samples", "occupancy_resolution",
                 "train_background", "view_dependent"):
-        if key in overrides:
+        if key == "resolution" and cfg.field == "nerf":
+            continue
+        if key == "field" and key in overrides and cfg.field == "nerf":
+            echo(f"model: field = 'nerf' (override): {why['field']}")
+        elif key in overrides:
             echo(f"model: {key} = {getattr(cfg, key)!r} (override)")
         elif key in why:
             echo(f"model: {key}: {why[key]}")
@@ -471,4 +487,5 @@ def build_field(model: ModelConfig, seed: int = 0, steps: int | None = None):
                             multires=model.multires, view_dependent=model.view_dependent,
                             hidden=model.hidden, density_shift=model.density_shift, generator=gen)
     anneal = None if steps is None else max(1, int(steps) // 4)
-    return NeRFField(aabb=model.field_aabb, view_dependent=model.view_dependent, anneal_steps=anneal, generator=gen)
+    return NeRFField(aabb=model.field_aabb, n_freqs=NERF_FREQS, hidden=NERF_HIDDEN, n_layers=NERF_LAYERS,
+                     view_dependent=model.view_dependent, anneal_steps=anneal, generator=gen)

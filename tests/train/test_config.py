@@ -197,3 +197,22 @@ def test_build_field_anneals_nerf_over_a_quarter_of_the_steps():
     assert field.anneal_steps == 100
     # step 50 of 100 with 10 bands: eta = 10 * 50 / 100 = 5 -> bands 0..4 on, 5..9 off
     np.testing.assert_allclose(field.set_progress(50).numpy(), [1.0] * 5 + [0.0] * 5, atol=1e-7)
+
+
+def test_the_nerf_field_is_the_one_its_model_lines_describe():
+    # Before, `--field nerf` printed the K-Planes plane resolution it does not have (so at 64a97d5).
+    from senerf.train import build_field, nerf_description
+
+    lines = []
+    model = choose_model(_scene(), np.arange(6), {"field": "nerf"}, echo=lines.append)
+    assert "model: field = 'nerf' (override): NeRF MLP, 4 layers x 128, 10 frequency bands annealed over the first " \
+           "quarter of each training" in lines
+    assert not any(line.startswith("model: resolution") for line in lines)
+    field = build_field(model, seed=0, steps=40)
+    linears = [m for m in field.trunk]
+    assert field.n_freqs == 10 and len(linears) == 4 and all(m.out_features == 128 for m in linears)
+    assert nerf_description().startswith("4 layers x 128, 10 frequency bands")
+    kplanes = []
+    choose_model(_scene(), np.arange(6), echo=kplanes.append)
+    assert any(line.startswith("model: resolution: base") for line in kplanes)
+    assert "model: field: K-Planes (the paper's main backbone)" in kplanes
