@@ -489,6 +489,13 @@ def _run(args, argv) -> int:
             raise InputError(f"--reliability oracle needs held-out views (neither training nor test); protocol "
                              f"{protocol} leaves none of the {scene.n_images} images", file=scene_dir,
                              field="--reliability")
+    if st_cfg is not None and st_cfg.reliability != "oracle":   # checked now, not after the baseline has trained
+        from senerf.selftrain import pseudo_view_centre_problem
+
+        problem = pseudo_view_centre_problem(scene, train_idx)
+        if problem is not None:
+            raise InputError(problem, field="--views" if args.views else "--n-views" if args.n_views else
+                             "--protocol")
     out = args.out if args.out is not None else Path("runs") / f"{scene.name}-{protocol}"
     config = dict(scene_dir=str(scene_dir.resolve()), format=fmt, downscale=downscale, protocol=protocol,
                   views=args.views, n_views=args.n_views, preset=args.preset, train=config_to_dict(train_cfg),

@@ -266,6 +266,19 @@ def test_k_planes_settings_with_the_nerf_field_are_refused(tiny_scene, tmp_path,
     assert not out.exists()
 
 
+def test_self_training_on_one_view_is_refused_before_anything_is_written(tiny_scene, tmp_path, capsys):
+    # It crashed after the teacher had trained ("internal error": the pseudo views had no centre; so at d0f9581).
+    out = tmp_path / "o"
+    small = [a for a in SMALL if a not in ("--iterations", "0")]
+    assert main([str(tiny_scene), "--out", str(out), *small, "--views", "0", "--iterations", "1",
+                 "--features", "daisy"]) == 2
+    line = _one_error_line(capsys)
+    assert line.startswith("senerf-fit: error: --views: self-training turns its pseudo views about the point")
+    assert "1 training view has no such point" in line and "or use --iterations 0" in line
+    assert not out.exists()
+    assert main([str(tiny_scene), "--out", str(out), *SMALL, "--views", "0"]) == 0   # the baseline alone fits
+
+
 @pytest.mark.parametrize("position, needle", [
     (0.0, "all stand at one camera centre"),     # a tripod pan: no parallax (math.log(0) crashed, so at 71d19d4)
     (1e300, "the cameras' box cannot be computed"),  # norms overflow

@@ -14,7 +14,7 @@ Public API (see DESIGN.md):
 """
 
 from .controller import (RELIABILITY_KINDS, PseudoLabels, SelfTrainConfig, dataset_pseudo_views, estimate_reliability,
-                         known_images, oracle_reliability, reliability_mask_quality,
+                         known_images, oracle_reliability, pseudo_view_centre_problem, reliability_mask_quality,
                          run_selftraining)
 from .distill import (DistillationLoss, DistillConfig, PseudoRays, bins_with_fractions, gaussian_kernel,
                       gaussian_prior, neighbour_offsets, prior_weights, unified_prior_weights)
@@ -32,4 +32,5 @@ __all__ = [
     "gaussian_prior", "bins_with_fractions", "PseudoRays", "DistillationLoss",
     "SelfTrainConfig", "PseudoLabels", "run_selftraining", "estimate_reliability", "known_images",
     "reliability_mask_quality", "dataset_pseudo_views", "oracle_reliability", "RELIABILITY_KINDS",
+    "pseudo_view_centre_problem",
 ]

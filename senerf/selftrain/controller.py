@@ -50,7 +50,8 @@ from .reliability import (THRESHOLD_KINDS, gt_reliable_mask, mask_quality, resol
                           view_similarity)
 
 __all__ = ["SelfTrainConfig", "PseudoLabels", "run_selftraining", "estimate_reliability", "known_images",
-           "reliability_mask_quality", "oracle_reliability", "dataset_pseudo_views", "RELIABILITY_KINDS"]
+           "reliability_mask_quality", "oracle_reliability", "dataset_pseudo_views", "pseudo_view_centre_problem",
+           "RELIABILITY_KINDS"]
 
 _CKPT_FORMAT = "senerf-selftrain-1"
 RELIABILITY_KINDS = ("features", "oracle")
@@ -405,6 +406,38 @@ def _sample_pseudo_poses(scene, train_idx, cfg: SelfTrainConfig, iteration: int)
             tuple(scene.intrinsics_all[int(train_idx[s])] for s in source))
 
 
+def pseudo_view_centre_problem(scene, train_idx) -> str | None:
+    """Why pseudo views cannot be sampled around the training views, or None when they can.
+
+    :func:`senerf.geometry.sample_pseudo_views` turns each training camera about the point the training views'
+    optical axes pass closest to (:func:`senerf.geometry.closest_point_to_axes`); one view, or views whose axes
+    are all parallel, have no such point.  Checked before any training (the oracle, which takes held-out
+    dataset views instead, needs no centre).
+    """
+    train_idx = np.asarray(train_idx, dtype=np.int64).reshape(-1)
+    try:
+        geometry.closest_point_to_axes(np.asarray(scene.c2w[train_idx], dtype=np.float64))
+    except ValueError:
+        views = "1 training view has" if train_idx.size == 1 else f"the {train_idx.size} training views' axes are " \
+            "all parallel, so they have"
+        return (f"self-training turns its pseudo views about the point the training views' optical axes pass "
+                f"closest to, and {views} no such point; train on 2 or more views that look at the scene from "
+                "different directions, or use --iterations 0")
+    return None
+
+
+def _labels_text(labels: PseudoLabels, cfg: SelfTrainConfig) -> str:
+    """What the labelling found, for the iteration's line: the threshold, the reliable share of the pseudo views'
+    foreground and the share the prior covers (``prior off`` without it); without foreground, says so."""
+    if not labels.foreground.any():
+        return (f"no foreground in them (the teacher renders every pixel below opacity {cfg.opacity_threshold:g}): "
+                "no colour, density or prior labels, only empty space")
+    tau = ("oracle" if cfg.reliability == "oracle" else "soft" if labels.tau is None else f"{labels.tau:.3f}")
+    use_prior = cfg.prior and cfg.lambda_prior > 0
+    prior = (f"prior on {100 * float(labels.prior[labels.foreground].mean()):.1f} %" if use_prior else "prior off")
+    return f"tau {tau}, reliable {100 * labels.reliable_fraction:.1f} % of foreground, {prior}"
+
+
 def _selftrain_identity(selftrain: dict) -> dict:
     """The self-training settings as the resume fingerprint sees them: settings added later are written the
     way earlier versions recorded the same behaviour (``batch_empty = 0`` did not exist; ``student_grid``
@@ -511,6 +544,10 @@ def run_selftraining(scene, train_idx, test_idx, model, train_cfg, cfg: SelfTrai
         progress: tqdm bars; echo: where one-line status messages go.
     Returns:
         the ``metrics.json`` dict (DESIGN.md contract).
+
+    Raises:
+        InputError: before anything is trained, when pseudo views cannot be sampled around the training views
+            (:func:`pseudo_view_centre_problem`).
     """
     from ..train import RayBatchSource
 
@@ -519,6 +556,10 @@ def run_selftraining(scene, train_idx, test_idx, model, train_cfg, cfg: SelfTrai
     student_cfg = student_cfg or train_cfg
     device = torch.device(train_cfg.device)
     train_idx = np.asarray(train_idx, dtype=np.int64).reshape(-1)
+    problem = (pseudo_view_centre_problem(scene, train_idx) if cfg.iterations > 0 and cfg.reliability != "oracle"
+               else None)
+    if problem is not None:
+        raise InputError(problem, field="train_idx")
     test_idx = np.asarray(test_idx, dtype=np.int64).reshape(-1)
     config = dict(train=config_to_dict(train_cfg), student=config_to_dict(student_cfg),
                   model=config_to_dict(model), selftrain=config_to_dict(cfg), **(extra_config or {}))
@@ -572,11 +613,8 @@ def run_selftraining(scene, train_idx, test_idx, model, train_cfg, cfg: SelfTrai
                                               pseudo_intrinsics=pseudo_k, progress=progress)
             reliable_fraction = labels.reliable_fraction
             _write_pseudo_pngs(out / f"iter_{k}" / "pseudo", labels)
-            tau_txt = ("oracle" if cfg.reliability == "oracle" else "soft" if labels.tau is None
-                       else f"{labels.tau:.3f}")
             echo(f"selftrain: iteration {k}: {pseudo_c2w.shape[0]} pseudo views within "
-                 f"{cfg.pseudo_range(k):g} deg, tau {tau_txt}, reliable {100 * reliable_fraction:.1f} % of "
-                 f"foreground, prior on {100 * float(labels.prior[labels.foreground].mean()):.1f} %")
+                 f"{cfg.pseudo_range(k):g} deg, {_labels_text(labels, cfg)}")
             pseudo = _pseudo_rays(labels, model, device, cfg.kernel_size)
             extra = DistillationLoss(teacher, pseudo, cfg, model.n_samples,
                                      model.train_background, teacher_occupancy=occupancy)

@@ -596,3 +596,63 @@ def test_the_progress_setting_reaches_the_labelling_and_its_renders(tiny_scene, 
                                         make_feature_extractor("daisy"), SelfTrainConfig(features="daisy"), 0.15,
                                         progress=True)
     assert rendered == [True, True]   # the known views' render and the pseudo views'
+
+
+def test_one_training_view_is_refused_before_the_teacher_trains(tiny_scene, tmp_path):
+    # The helper's flag matrix: with one view the pseudo views had no centre, and sample_pseudo_views raised a
+    # ValueError after the teacher had trained ("internal error", so at d0f9581).
+    from senerf.train import TrainConfig, choose_model
+
+    scene = tiny_scene
+    train_idx, test_idx = scene.splits["train"][:1], scene.splits["test"]
+    model = choose_model(scene, train_idx, {"n_samples": 8, "resolution": 16, "occupancy_resolution": 0},
+                         echo=lambda s: None)
+    out = tmp_path / "run"
+    with pytest.raises(InputError, match="1 training view has no such point; train on 2 or more views"):
+        controller_mod.run_selftraining(scene, train_idx, test_idx, model, TrainConfig(steps=2, batch_rays=32),
+                                        SelfTrainConfig(iterations=1, features="daisy"), out, progress=False,
+                                        echo=lambda s: None)
+    assert not out.exists()
+    m = controller_mod.run_selftraining(scene, train_idx, test_idx, model,
+                                        TrainConfig(steps=2, batch_rays=32, checkpoint_every=0),
+                                        SelfTrainConfig(iterations=0), out, progress=False, echo=lambda s: None)
+    assert [it["iteration"] for it in m["iterations"]] == [0]   # the baseline alone needs no centre
+
+
+def test_pseudo_view_centre_problem_names_parallel_axes_and_passes_converging_ones():
+    from types import SimpleNamespace
+
+    from senerf.geometry import look_at
+
+    eyes = np.array([[4.0, 0.0, 1.0], [0.0, 4.0, 1.0], [-4.0, 0.0, 1.0]])
+    converging = SimpleNamespace(c2w=look_at(eyes, np.zeros(3)))
+    assert controller_mod.pseudo_view_centre_problem(converging, [0, 1, 2]) is None
+    shifted = np.repeat(look_at(eyes[:1], np.zeros(3)), 2, axis=0)
+    shifted[1, :3, 3] += shifted[1, :3, 0]   # the same camera moved sideways: parallel axes
+    text = controller_mod.pseudo_view_centre_problem(SimpleNamespace(c2w=shifted), [0, 1])
+    assert "the 2 training views' axes are all parallel, so they have no such point" in text
+
+
+def test_the_labelling_line_without_foreground_and_without_the_prior():
+    # Before, pseudo views the teacher renders all below the opacity threshold printed "tau inf, reliable nan %"
+    # after two numpy warnings, and --no-prior still printed "prior on X %" (so at d0f9581).
+    from types import SimpleNamespace
+
+    fg = np.array([[True, False], [True, True]])
+    labels = SimpleNamespace(foreground=fg, tau=0.8, prior=np.array([[1.0, 0.0], [0.0, 0.0]], np.float32),
+                             reliable_fraction=0.5)
+    cfg = SelfTrainConfig()
+    assert controller_mod._labels_text(labels, cfg) == "tau 0.800, reliable 50.0 % of foreground, prior on 33.3 %"
+    no_prior = dataclasses.replace(cfg, prior=False)
+    assert controller_mod._labels_text(labels, no_prior).endswith("of foreground, prior off")
+    assert controller_mod._labels_text(labels, dataclasses.replace(cfg, lambda_prior=0.0)).endswith("prior off")
+    assert controller_mod._labels_text(SimpleNamespace(**{**vars(labels), "tau": None}), cfg).startswith("tau soft")
+    oracle = dataclasses.replace(cfg, reliability="oracle")
+    assert controller_mod._labels_text(labels, oracle).startswith("tau oracle")
+    empty = SimpleNamespace(**{**vars(labels), "foreground": np.zeros_like(fg), "tau": float("inf")})
+    import warnings
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        text = controller_mod._labels_text(empty, cfg)
+    assert text == ("no foreground in them (the teacher renders every pixel below opacity 0.5): no colour, density "
+                    "or prior labels, only empty space")
