@@ -579,7 +579,10 @@ def run_selftraining(scene, train_idx, test_idx, model, train_cfg, cfg: SelfTrai
         metrics["iterations"] = [it for it in rows if it["iteration"] <= done]
         seconds_before = float(sum(it.get("seconds", 0.0) for it in metrics["iterations"]))
         start = done + 1
-        echo(f"selftrain: resuming after iteration {done} from {teacher_path}")
+        if done >= cfg.iterations:   # finished (perhaps beyond what is asked now): its figures are reported as they are
+            echo(f"selftrain: {out} holds iterations 0-{done} already ({cfg.iterations} asked for); nothing to train")
+        else:
+            echo(f"selftrain: resuming after iteration {done} from {teacher_path}")
     rays = RayBatchSource.from_scene(scene, train_idx, model, device)
     extractor = None
     known_feats = None

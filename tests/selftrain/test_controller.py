@@ -138,11 +138,18 @@ def test_tiny_end_to_end_with_resume(tiny_scene, tmp_path, monkeypatch):
         assert len(list(pseudo.glob(f"{kind}_*.png"))) == 3
     assert (out / "iter_1" / "test" / "rgb_000.png").exists()
     assert (out / "checkpoints" / "teacher.pt").exists()
-    # a finished run is not retrained
+    # a finished run is not retrained, and says so (before, it said "resuming after iteration 1", so at fbf5b94)
     calls.clear()
+    lines.clear()
     controller_mod.run_selftraining(scene, train_idx, test_idx, model, tcfg, cfg, out, progress=False,
                                     echo=lines.append)
     assert calls == []
+    assert lines == [f"selftrain: {out} holds iterations 0-1 already (1 asked for); nothing to train"]
+    lines.clear()
+    fewer = controller_mod.run_selftraining(scene, train_idx, test_idx, model, tcfg, base, out, progress=False,
+                                            echo=lines.append)
+    assert calls == [] and lines == [f"selftrain: {out} holds iterations 0-1 already (0 asked for); nothing to train"]
+    assert [it["iteration"] for it in fewer["iterations"]] == [0, 1]
     # different settings in the same folder are refused, naming the setting
     with pytest.raises(InputError, match=r'different settings \(config.selftrain.features: "vgg19" in the folder, '
                                          r'"daisy" now\)'):
