@@ -494,8 +494,9 @@ def _run(args, argv) -> int:
 
         problem = pseudo_view_centre_problem(scene, train_idx)
         if problem is not None:
-            raise InputError(problem, field="--views" if args.views else "--n-views" if args.n_views else
-                             "--protocol")
+            flag = ("--views" if args.views else "--n-views" if args.n_views else
+                    "--protocol" if args.protocol else f"training views (protocol {protocol})")
+            raise InputError(problem, file=scene_dir, field=flag)
     out = args.out if args.out is not None else Path("runs") / f"{scene.name}-{protocol}"
     config = dict(scene_dir=str(scene_dir.resolve()), format=fmt, downscale=downscale, protocol=protocol,
                   views=args.views, n_views=args.n_views, preset=args.preset, train=config_to_dict(train_cfg),

@@ -273,8 +273,8 @@ def test_self_training_on_one_view_is_refused_before_anything_is_written(tiny_sc
     assert main([str(tiny_scene), "--out", str(out), *small, "--views", "0", "--iterations", "1",
                  "--features", "daisy"]) == 2
     line = _one_error_line(capsys)
-    assert line.startswith("senerf-fit: error: --views: self-training turns its pseudo views about the point")
-    assert "1 training view has no such point" in line and "or use --iterations 0" in line
+    assert line.startswith(f"senerf-fit: error: {tiny_scene}: --views: self-training turns its pseudo views about")
+    assert "1 training view has no such point" in line and "or fit the baseline alone (--iterations 0)" in line
     assert not out.exists()
     assert main([str(tiny_scene), "--out", str(out), *SMALL, "--views", "0"]) == 0   # the baseline alone fits
 

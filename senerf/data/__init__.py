@@ -8,7 +8,8 @@ Public API::
     load_blender, load_ngp, load_llff, load_colmap   the per-format loaders (LLFF and COLMAP take bd_factor,
                                             recenter)
     detect_format(path) -> 'blender' | 'ngp' | 'llff' | 'colmap'
-    Distortion, undistorted_intrinsics, undistortion_maps, undistort_image, distort_pixels, photo_coverage
+    Distortion, undistorted_intrinsics, undistortion_maps, undistort_image, distort_pixels, photo_coverage,
+    COVERAGE_WARN
                                             lens undistortion, applied by the JSON loaders (OPENCV, OPENCV_FISHEYE)
     scene_file_digests(scene, views=None) -> {name: sha256}   what the scene's files held (resume checks)
     changed_files(then, now) -> [line]      how two such records differ, one line per file
@@ -26,8 +27,8 @@ from .fewshot import EXTREME_VIEWS, INFONERF4_VIEWS, PROTOCOLS, fewshot_split
 from .llff import load_llff, recenter_poses
 from .load import detect_format, load_scene, scene_root
 from .scene import Scene, changed_files, scene_file_digests, view_names
-from .undistort import (Distortion, distort_pixels, photo_coverage, undistort_image, undistorted_intrinsics,
-                        undistortion_maps)
+from .undistort import (COVERAGE_WARN, Distortion, distort_pixels, photo_coverage, undistort_image,
+                        undistorted_intrinsics, undistortion_maps)
 
 __all__ = [
     "Scene",
@@ -52,4 +53,5 @@ __all__ = [
     "undistortion_maps",
     "undistort_image",
     "photo_coverage",
+    "COVERAGE_WARN",
 ]

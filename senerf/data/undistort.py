@@ -59,9 +59,10 @@ _BISECTIONS = 40
 # The focal search keeps every border sample within the photo's pixel centres exactly; the full float32 maps may
 # then fall this far (pixels) outside them, float32's rounding at 10^4 pixels being 1e-3.
 _MAP_TOL = 1e-2
-#: A photo whose pinhole view keeps less than this share of it gets a warning when the scene loads: a lens model
-#: that folds back inside the photo (often a coefficient with the wrong sign or scale) or sees wider than a
-#: pinhole image can hold.
+#: A photo whose pinhole view keeps less than this share of it gets a warning when the scene loads, saying why: a
+#: lens model that folds back well inside the photo (a strong coefficient, perhaps of the wrong sign or scale), or a
+#: lens wider than a pinhole image can hold (a circular fisheye).  Ordinary lenses keep 0.77-0.98; a model folding
+#: just inside the corners can keep 0.5-0.7 and is not warned about.
 COVERAGE_WARN = 0.5
 
 
@@ -236,7 +237,8 @@ def photo_coverage(k_photo: Intrinsics, distortion: Distortion, k_pinhole: Intri
         The area, in photo pixels, enclosed by where the pinhole view's border pixel centres land in the photo,
         over the area ``(W - 1) x (H - 1)`` enclosed by the photo's own border pixel centres: 1 for an identity
         distortion, less where the pinhole view crops the photo (as it does wherever a barrel lens's corners
-        bend inwards, ~0.96 for ``k1 = -0.1`` at 50 degrees across); NaN for a photo one pixel across.
+        bend inwards: 0.96 for ``k1 = -0.1`` on a 640x480 photo with a 500-pixel focal length); NaN for a photo one
+        pixel across.
 
     Example:
         >>> k = Intrinsics(500, 500, 320, 240, 640, 480)
@@ -334,6 +336,21 @@ def undistort_image(img: np.ndarray, maps: tuple) -> np.ndarray:
     return out
 
 
+def _why_cropped(k_photo: Intrinsics, distortion: Distortion, k_pinhole: Intrinsics) -> str:
+    """What stopped :func:`undistorted_intrinsics` from widening ``k_pinhole``: the 80-degree cap, the lens model's
+    fold (a view a millionth wider lands on the photo but folds), or the photo's border."""
+    probe = _probe_uv(k_pinhole.width, k_pinhole.height)
+    off_axis = np.hypot((probe[:, 0] - k_pinhole.cx) / k_pinhole.fx, (probe[:, 1] - k_pinhole.cy) / k_pinhole.fy)
+    if math.degrees(math.atan(off_axis.max())) > _MAX_OFF_AXIS_DEG - 1e-6:
+        return "the lens sees wider than a pinhole view can hold (160 degrees across), as a circular fisheye does"
+    wider = _pinhole(k_photo, k_pinhole.fx / k_photo.fx * (1.0 - 1e-6))
+    on_photo = distort_pixels(probe, wider, k_photo, distortion)
+    if _on_centres(on_photo[:, 0], on_photo[:, 1], k_photo, 1e-9):
+        return ("its lens model folds back inside the photo, and the view stops at the fold; check the "
+                "coefficients' signs and scale")
+    return "the widest pinhole view inside the photo is that narrow; check the coefficients"
+
+
 class Undistorter:
     """The loaders' ``prepare`` for :func:`senerf.data._io.load_images`: undistorts each view's photo as it is
     decoded and records the pinhole camera it was resampled onto.
@@ -382,14 +399,9 @@ class Undistorter:
         if not share < COVERAGE_WARN:
             return
         self._warned = True
-        probe = _probe_uv(k_pinhole.width, k_pinhole.height)   # the view at the 80-degree cap: the lens is too wide
-        off_axis = np.hypot((probe[:, 0] - k_pinhole.cx) / k_pinhole.fx, (probe[:, 1] - k_pinhole.cy) / k_pinhole.fy)
-        wide = math.degrees(math.atan(off_axis.max())) > _MAX_OFF_AXIS_DEG - 1e-6
-        why = ("the lens sees wider than a pinhole view can hold (160 degrees across)" if wide else
-               "its lens model folds back inside the photo; check the coefficients' signs and scale")
         warnings.warn(f"{e.get('distortion_file', e['file'])}: undistorting {e['path'].name} keeps {share:.0%} of "
                       f"the photo ({e['distortion_field']}: {e['distortion'].model} {tuple(e['distortion'].coeffs)}); "
-                      f"{why}", stacklevel=4)
+                      f"{_why_cropped(k_photo, e['distortion'], k_pinhole)}", stacklevel=4)
 
     def cameras(self, height: int, width: int) -> list:
         """After loading: each view's camera at the decoded size ``(height, width)``, the pinhole one where the

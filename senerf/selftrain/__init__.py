@@ -9,7 +9,8 @@ Public API (see DESIGN.md):
   :func:`threshold_weights`, :func:`gt_reliable_mask`, :func:`mask_quality`;
 * distillation: :class:`DistillConfig`, :func:`gaussian_kernel`, :func:`prior_weights`,
   :func:`gaussian_prior`, :class:`PseudoRays`, :class:`DistillationLoss`;
-* the loop: :class:`SelfTrainConfig`, :func:`run_selftraining`, :func:`estimate_reliability`,
+* the loop: :class:`SelfTrainConfig`, :func:`run_selftraining`, :func:`pseudo_view_centre_problem` (why the
+  training views leave the pseudo views no centre, checked before training), :func:`estimate_reliability`,
   :func:`reliability_mask_quality` (masks vs ground-truth colour at held-out poses).
 """
 

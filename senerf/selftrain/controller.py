@@ -410,20 +410,44 @@ def pseudo_view_centre_problem(scene, train_idx) -> str | None:
     """Why pseudo views cannot be sampled around the training views, or None when they can.
 
     :func:`senerf.geometry.sample_pseudo_views` turns each training camera about the point the training views'
-    optical axes pass closest to (:func:`senerf.geometry.closest_point_to_axes`); one view, or views whose axes
-    are all parallel, have no such point.  Checked before any training (the oracle, which takes held-out
-    dataset views instead, needs no centre).
+    optical axes pass closest to (:func:`senerf.geometry.closest_point_to_axes`), measuring azimuth about the
+    views' common up axis (:func:`senerf.geometry.default_up`); one view, or views whose axes are all parallel,
+    have no such point.  Checked before any training by sampling the pseudo views at offset 0 (the oracle, which
+    takes held-out dataset views instead, needs neither).
+
+    Args:
+        scene: anything with ``c2w`` ``(n_images, 4, 4)`` (a :class:`senerf.data.Scene`).
+        train_idx: ``(m,)`` training view indices into it.
+
+    Returns:
+        One line saying what is wrong and what to do, or None.
     """
     train_idx = np.asarray(train_idx, dtype=np.int64).reshape(-1)
+    c2w = np.asarray(scene.c2w[train_idx], dtype=np.float64)
+    advice = ("train on 2 or more views that look at the scene from different directions, or fit the baseline "
+              "alone (--iterations 0)")
     try:
-        geometry.closest_point_to_axes(np.asarray(scene.c2w[train_idx], dtype=np.float64))
+        geometry.closest_point_to_axes(c2w)
     except ValueError:
-        views = "1 training view has" if train_idx.size == 1 else f"the {train_idx.size} training views' axes are " \
-            "all parallel, so they have"
+        views = ("1 training view has" if train_idx.size == 1 else
+                 f"the {train_idx.size} training views' axes are all parallel, so they have")
         return (f"self-training turns its pseudo views about the point the training views' optical axes pass "
-                f"closest to, and {views} no such point; train on 2 or more views that look at the scene from "
-                "different directions, or use --iterations 0")
+                f"closest to, and {views} no such point; {advice}")
+    try:
+        geometry.sample_pseudo_views(c2w, 0.0, c2w.shape[0], np.random.default_rng(0))
+    except ValueError as exc:
+        return f"self-training cannot place pseudo views around the {train_idx.size} training views ({exc}); {advice}"
     return None
+
+
+def _finished_metrics(path: Path, done: int) -> dict | None:
+    """``metrics.json`` as written after iteration ``done`` (None when it is missing or stops earlier: a run
+    killed between saving its teacher and its metrics, whose rows then come from the teacher's checkpoint)."""
+    try:
+        stored = json.loads(path.read_text())
+        return stored if stored["iterations"][-1]["iteration"] >= done else None
+    except (OSError, ValueError, KeyError, IndexError, TypeError):
+        return None
 
 
 def _labels_text(labels: PseudoLabels, cfg: SelfTrainConfig) -> str:
@@ -579,8 +603,11 @@ def run_selftraining(scene, train_idx, test_idx, model, train_cfg, cfg: SelfTrai
         metrics["iterations"] = [it for it in rows if it["iteration"] <= done]
         seconds_before = float(sum(it.get("seconds", 0.0) for it in metrics["iterations"]))
         start = done + 1
-        if done >= cfg.iterations:   # finished (perhaps beyond what is asked now): its figures are reported as they are
+        if done >= cfg.iterations:   # finished (perhaps beyond what is asked now): reported as it is, untouched
             echo(f"selftrain: {out} holds iterations 0-{done} already ({cfg.iterations} asked for); nothing to train")
+            stored = _finished_metrics(metrics_path, done)
+            if stored is not None:
+                return stored
         else:
             echo(f"selftrain: resuming after iteration {done} from {teacher_path}")
     rays = RayBatchSource.from_scene(scene, train_idx, model, device)

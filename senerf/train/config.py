@@ -25,6 +25,9 @@ __all__ = [
     "preset_train_config",
     "choose_model",
     "nerf_description",
+    "NERF_FREQS",
+    "NERF_HIDDEN",
+    "NERF_LAYERS",
     "camera_aabb",
     "config_to_dict",
     "settings_differences",
@@ -439,6 +442,11 @@ def choose_model(scene, train_idx, overrides: Mapping[str, Any] | None = None,
     chosen["field"] = "kplanes"
     why["field"] = "K-Planes (the paper's main backbone)"
 
+    if overrides.get("field") == "nerf":
+        for key in ("resolution", "hidden"):
+            if key in overrides:
+                raise InputError(f"{key} sets the K-Planes field; the NeRF field has no such setting (its MLP is "
+                                 f"fixed: {nerf_description()})", field="overrides")
     cfg_values = {**chosen, **overrides}
     try:
         cfg = ModelConfig(**cfg_values)
@@ -446,7 +454,6 @@ def choose_model(scene, train_idx, overrides: Mapping[str, Any] | None = None,
         raise InputError(str(exc), field="overrides") from None
     if cfg.field == "nerf":   # the plane resolution does not apply; say what the MLP is instead
         why["field"] = f"NeRF MLP, {nerf_description()}"
-        why.pop("resolution", None)
     for key in ("field", "ndc", "aabb", "near", "resolution", "n_samples", "occupancy_resolution",
                 "train_background", "view_dependent"):
         if key == "resolution" and cfg.field == "nerf":

@@ -565,31 +565,52 @@ def _coverage_warnings(record) -> list:
     return [str(w.message) for w in record if "of the photo" in str(w.message)]
 
 
+def _grey(h: int, w: int):
+    return lambda seed: np.full((h, w, 3), 99, np.uint8)
+
+
 def test_a_lens_model_folding_inside_the_photo_warns_once_naming_file_and_field(tmp_path, writers):
     from senerf.data import load_scene
     d = Distortion("opencv", (-0.9, 0.0, 0.0, 0.0, 0.0))   # folds at r_d = 0.365; the photo reaches 0.63
     assert photo_coverage(K_PHOTO, d, undistorted_intrinsics(K_PHOTO, d)) < COVERAGE_WARN
-    root = writers.ngp(tmp_path / "n", meta_extra=_photo_meta(d), image=lambda seed: np.full((160, 200, 3), 99, np.uint8))
+    root = writers.ngp(tmp_path / "n", meta_extra=_photo_meta(d), image=_grey(160, 200))
+    meta = writers.read_json(root / "transforms.json")
+    meta["frames"][1]["k1"] = -0.95   # three cameras, each cropped: still one warning for the load
+    meta["frames"][2]["k1"] = -1.0
+    writers.write_json(root / "transforms.json", meta)
     with pytest.warns(UserWarning) as record:
         load_scene(root)
     lines = _coverage_warnings(record)
-    assert len(lines) == 1, lines   # three frames, one camera: one warning
+    assert len(lines) == 1, lines
     assert lines[0].startswith(f"{root / 'transforms.json'}: undistorting f_0.png keeps 34% of the photo (k1: opencv")
-    assert "folds back" in lines[0] and "signs and scale" in lines[0]
+    assert "folds back inside the photo, and the view stops at the fold" in lines[0]
 
 
-def test_a_fisheye_wider_than_a_pinhole_view_warns_that_it_is_too_wide(tmp_path, writers):
+def test_a_circular_fisheye_warns_that_it_is_too_wide(tmp_path, writers):
     from senerf.data import load_scene
     d = Distortion("fisheye", (0.0, 0.0, 0.0, 0.0))
-    k = Intrinsics(20.0, 20.0, 50.0, 50.0, 100, 100)   # an equidistant fisheye 140 degrees off axis at the corners
-    meta = {"fl_x": 20.0, "fl_y": 20.0, "cx": 50.0, "cy": 50.0, "w": 100, "h": 100, "camera_model": "OPENCV_FISHEYE",
+    f = 45.0 / (math.pi / 2.0)   # an equidistant 180-degree circle inscribed in a 120x90 photo's short side
+    k = Intrinsics(f, f, 60.0, 45.0, 120, 90)
+    meta = {"fl_x": f, "fl_y": f, "cx": 60.0, "cy": 45.0, "w": 120, "h": 90, "camera_model": "OPENCV_FISHEYE",
             "k1": 0.0, "k2": 0.0, "k3": 0.0, "k4": 0.0}
-    assert photo_coverage(k, d, undistorted_intrinsics(k, d)) < COVERAGE_WARN
-    root = writers.ngp(tmp_path / "n", meta_extra=meta, image=lambda seed: np.full((100, 100, 3), 99, np.uint8))
+    assert photo_coverage(k, d, undistorted_intrinsics(k, d)) == pytest.approx(0.438, abs=1e-3)
+    root = writers.ngp(tmp_path / "n", meta_extra=meta, image=_grey(90, 120))
     with pytest.warns(UserWarning) as record:
         load_scene(root)
     (line,) = _coverage_warnings(record)
-    assert "wider than a pinhole view can hold" in line and "folds" not in line
+    assert "keeps 44% of the photo" in line and "wider than a pinhole view can hold" in line and "folds" not in line
+
+
+def test_why_a_view_is_cropped_names_the_cap_the_fold_or_the_border():
+    from senerf.data.undistort import _why_cropped
+    fold = Distortion("opencv", (-0.9, 0.0, 0.0, 0.0, 0.0))
+    assert "folds back" in _why_cropped(K_PHOTO, fold, undistorted_intrinsics(K_PHOTO, fold))
+    strong_pincushion = Distortion("opencv", (2.0, 0.0, 0.0, 0.0, 0.0))   # no fold, no cap: the border stops it
+    assert "that narrow" in _why_cropped(K_PHOTO, strong_pincushion,
+                                         undistorted_intrinsics(K_PHOTO, strong_pincushion))
+    k = Intrinsics(30.0, 30.0, 50.0, 50.0, 100, 100)
+    eq = Distortion("fisheye", (0.0, 0.0, 0.0, 0.0))
+    assert "wider than a pinhole view" in _why_cropped(k, eq, undistorted_intrinsics(k, eq))
 
 
 @pytest.mark.parametrize("name", sorted(CASES))

@@ -216,3 +216,10 @@ def test_the_nerf_field_is_the_one_its_model_lines_describe():
     choose_model(_scene(), np.arange(6), echo=kplanes.append)
     assert any(line.startswith("model: resolution: base") for line in kplanes)
     assert "model: field: K-Planes (the paper's main backbone)" in kplanes
+
+
+@pytest.mark.parametrize("key", ["resolution", "hidden"])
+def test_choose_model_refuses_k_planes_settings_for_the_nerf_field(key):
+    with pytest.raises(InputError, match=f"{key} sets the K-Planes field; the NeRF field has no such setting"):
+        choose_model(_scene(), np.arange(6), {"field": "nerf", key: 16}, echo=lambda s: None)
+    assert getattr(choose_model(_scene(), np.arange(6), {key: 16}, echo=lambda s: None), key) == 16   # K-Planes
