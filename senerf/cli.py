@@ -363,9 +363,9 @@ def _run_baseline(scene, train_idx, test_idx, model, train_cfg, out: Path, argv,
     by self-training iterations) is left as it is: its rows are returned, nothing is retrained or dropped.
     """
     from senerf.data import view_names
-    from senerf.train import RayBatchSource, atomic_write_text, build_field, evaluate, train_field
+    from senerf.train import RayBatchSource, atomic_write_text, build_field, evaluate, finished_metrics, train_field
 
-    done = _finished_metrics(out)
+    done = finished_metrics(out, 0)
     if done is not None:
         print(f"{PROG}: iteration 0 is already done in {out} ({len(done['iterations'])} iteration(s) recorded)")
         return done
@@ -389,18 +389,6 @@ def _run_baseline(scene, train_idx, test_idx, model, train_cfg, out: Path, argv,
     return metrics
 
 
-def _finished_metrics(out: Path) -> dict | None:
-    """``out``'s metrics.json when it holds iteration 0, else None."""
-    try:
-        metrics = json.loads((out / "metrics.json").read_text())
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError):
-        return None
-    rows = metrics.get("iterations") if isinstance(metrics, dict) else None
-    if isinstance(rows, list) and any(isinstance(r, dict) and r.get("iteration") == 0 for r in rows):
-        return metrics
-    return None
-
-
 def _selftrain_available():
     try:
         from senerf.selftrain import SelfTrainConfig, run_selftraining
@@ -414,10 +402,9 @@ def _check_field_flags(args) -> None:
     if args.field == "nerf":
         for flag, value in (("--resolution", args.resolution), ("--hidden", args.hidden)):
             if value:
-                from senerf.train import nerf_description
+                from senerf.train import nerf_refusal
 
-                raise InputError(f"sets the K-Planes field; --field nerf has no such setting (its MLP is fixed: "
-                                 f"{nerf_description()})", field=flag)
+                raise InputError(nerf_refusal(), field=flag)
 
 
 def _run(args, argv) -> int:

@@ -253,9 +253,9 @@ def test_bad_model_and_size_settings_are_refused_before_anything_is_written(tiny
 
 
 @pytest.mark.parametrize("flags, needle", [
-    (["--hidden", "64"], "--hidden: sets the K-Planes field; --field nerf has no such setting (its MLP is fixed: 4 "
-                         "layers x 128, 10 frequency bands"),
-    (["--resolution", "32"], "--resolution: sets the K-Planes field; --field nerf has no such setting"),
+    (["--hidden", "64"], "--hidden: sets the K-Planes field; the NeRF field has no such setting (its MLP is fixed: "
+                         "4 layers x 128, 10 frequency bands"),
+    (["--resolution", "32"], "--resolution: sets the K-Planes field; the NeRF field has no such setting"),
 ])
 def test_k_planes_settings_with_the_nerf_field_are_refused(tiny_scene, tmp_path, capsys, flags, needle):
     # They were ignored without a word (so at 64a97d5).

@@ -42,8 +42,8 @@ from .. import __version__, geometry
 from ..data import view_names
 from ..errors import InputError
 from ..train import (atomic_write_text, build_field, camera_rays, config_to_dict, differences_text, eval_images,
-                     evaluate, load_checkpoint, load_state_keeping_box, make_occupancy, render_views, save_checkpoint,
-                     settings_differences, train_field, write_png)
+                     evaluate, finished_metrics, load_checkpoint, load_state_keeping_box, make_occupancy, render_views,
+                     save_checkpoint, settings_differences, train_field, write_png)
 from .distill import DistillationLoss, DistillConfig, PseudoRays, prior_weights, unified_prior_weights
 from .features import FEATURE_NAMES, known_view_features, make_feature_extractor
 from .reliability import (THRESHOLD_KINDS, gt_reliable_mask, mask_quality, resolve_threshold, threshold_weights,
@@ -440,16 +440,6 @@ def pseudo_view_centre_problem(scene, train_idx) -> str | None:
     return None
 
 
-def _finished_metrics(path: Path, done: int) -> dict | None:
-    """``metrics.json`` as written after iteration ``done`` (None when it is missing or stops earlier: a run
-    killed between saving its teacher and its metrics, whose rows then come from the teacher's checkpoint)."""
-    try:
-        stored = json.loads(path.read_text())
-        return stored if stored["iterations"][-1]["iteration"] >= done else None
-    except (OSError, ValueError, KeyError, IndexError, TypeError):
-        return None
-
-
 def _labels_text(labels: PseudoLabels, cfg: SelfTrainConfig) -> str:
     """What the labelling found, for the iteration's line: the threshold, the reliable share of the pseudo views'
     foreground and the share the prior covers (``prior off`` without it); without foreground, says so."""
@@ -605,7 +595,7 @@ def run_selftraining(scene, train_idx, test_idx, model, train_cfg, cfg: SelfTrai
         start = done + 1
         if done >= cfg.iterations:   # finished (perhaps beyond what is asked now): reported as it is, untouched
             echo(f"selftrain: {out} holds iterations 0-{done} already ({cfg.iterations} asked for); nothing to train")
-            stored = _finished_metrics(metrics_path, done)
+            stored = finished_metrics(out, done)   # None: killed before its metrics.json, rebuilt below
             if stored is not None:
                 return stored
         else:

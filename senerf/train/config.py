@@ -25,6 +25,7 @@ __all__ = [
     "preset_train_config",
     "choose_model",
     "nerf_description",
+    "nerf_refusal",
     "NERF_FREQS",
     "NERF_HIDDEN",
     "NERF_LAYERS",
@@ -45,6 +46,11 @@ def nerf_description() -> str:
     """One line saying what ``--field nerf`` builds (:func:`build_field`)."""
     return (f"{NERF_LAYERS} layers x {NERF_HIDDEN}, {NERF_FREQS} frequency bands annealed over the first quarter "
             "of each training")
+
+
+def nerf_refusal() -> str:
+    """Why a K-Planes setting (``resolution``, ``hidden``) is refused for the NeRF field, after its name."""
+    return f"sets the K-Planes field; the NeRF field has no such setting (its MLP is fixed: {nerf_description()})"
 
 
 def is_device_name(name) -> bool:
@@ -445,8 +451,7 @@ def choose_model(scene, train_idx, overrides: Mapping[str, Any] | None = None,
     if overrides.get("field") == "nerf":
         for key in ("resolution", "hidden"):
             if key in overrides:
-                raise InputError(f"{key} sets the K-Planes field; the NeRF field has no such setting (its MLP is "
-                                 f"fixed: {nerf_description()})", field="overrides")
+                raise InputError(f"{key} {nerf_refusal()}", field="overrides")
     cfg_values = {**chosen, **overrides}
     try:
         cfg = ModelConfig(**cfg_values)
