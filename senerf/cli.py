@@ -362,8 +362,8 @@ def _run_baseline(scene, train_idx, test_idx, model, train_cfg, out: Path, argv,
     A folder whose metrics.json already holds iteration 0 (this run's baseline, finished, perhaps followed
     by self-training iterations) is left as it is: its rows are returned, nothing is retrained or dropped.
     """
-    from senerf.data import view_names
-    from senerf.train import RayBatchSource, atomic_write_text, build_field, evaluate, finished_metrics, train_field
+    from senerf.train import (RayBatchSource, atomic_write_text, build_field, evaluate, finished_metrics,
+                              iteration_row, metrics_document, train_field)
 
     done = finished_metrics(out, 0)
     if done is not None:
@@ -377,14 +377,9 @@ def _run_baseline(scene, train_idx, test_idx, model, train_cfg, out: Path, argv,
     ev = evaluate(result.field, scene, test_idx, out / "iter_0" / "test", model, occupancy=result.occupancy,
                   device=train_cfg.device, progress=progress)
     seconds = time.perf_counter() - t0 + result.seconds_before  # an interrupted call's training counts too
-    h, w = scene.intrinsics.size
-    metrics = {"senerf_version": __version__, "command": list(argv), "config": config, "scene": scene.name,
-               "train_views": [int(i) for i in train_idx], "test_views": [int(i) for i in test_idx],
-               "train_images": view_names(scene, train_idx), "test_images": view_names(scene, test_idx),
-               "resolution": [int(h), int(w)],
-               "iterations": [dict(iteration=0, psnr=ev["psnr"], ssim=ev["ssim"], lpips=ev["lpips"], avg=ev["avg"],
-                                   reliable_fraction=None, seconds=seconds, per_view=ev["per_view"])],
-               "seconds_total": seconds}
+    metrics = metrics_document(scene, train_idx, test_idx, argv, config)
+    metrics["iterations"].append(iteration_row(0, ev, None, seconds))
+    metrics["seconds_total"] = seconds
     atomic_write_text(out / "metrics.json", json.dumps(metrics, indent=1))
     return metrics
 

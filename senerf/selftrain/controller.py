@@ -38,12 +38,11 @@ from typing import Callable
 import numpy as np
 import torch
 
-from .. import __version__, geometry
-from ..data import view_names
+from .. import geometry
 from ..errors import InputError
 from ..train import (atomic_write_text, build_field, camera_rays, config_to_dict, differences_text, eval_images,
-                     evaluate, finished_metrics, load_checkpoint, load_state_keeping_box, make_occupancy, render_views,
-                     save_checkpoint, settings_differences, train_field, write_png)
+                     evaluate, finished_metrics, iteration_row, load_checkpoint, load_state_keeping_box, make_occupancy,
+                     metrics_document, render_views, save_checkpoint, settings_differences, train_field, write_png)
 from .distill import DistillationLoss, DistillConfig, PseudoRays, prior_weights, unified_prior_weights
 from .features import FEATURE_NAMES, known_view_features, make_feature_extractor
 from .reliability import (THRESHOLD_KINDS, gt_reliable_mask, mask_quality, resolve_threshold, threshold_weights,
@@ -579,10 +578,7 @@ def run_selftraining(scene, train_idx, test_idx, model, train_cfg, cfg: SelfTrai
                   model=config_to_dict(model), selftrain=config_to_dict(cfg), **(extra_config or {}))
     h, w = scene.intrinsics.size
     settings = _run_settings(config, scene.name, train_idx, test_idx, (h, w))
-    metrics = {"senerf_version": __version__, "command": list(command or []), "config": config,
-               "scene": scene.name, "train_views": train_idx.tolist(), "test_views": test_idx.tolist(),
-               "train_images": view_names(scene, train_idx), "test_images": view_names(scene, test_idx),
-               "resolution": [int(h), int(w)], "iterations": [], "seconds_total": 0.0}
+    metrics = metrics_document(scene, train_idx, test_idx, command, config)
     ckpt_dir = out / "checkpoints"
     teacher_path = ckpt_dir / "teacher.pt"
     metrics_path = out / "metrics.json"
@@ -646,10 +642,7 @@ def run_selftraining(scene, train_idx, test_idx, model, train_cfg, cfg: SelfTrai
         ev = evaluate(teacher, scene, test_idx, out / f"iter_{k}" / "test", model, occupancy=occupancy,
                       device=device, progress=progress)
         rf = None if reliable_fraction is None or math.isnan(reliable_fraction) else float(reliable_fraction)
-        metrics["iterations"].append(dict(iteration=k, psnr=ev["psnr"], ssim=ev["ssim"], lpips=ev["lpips"],
-                                          avg=ev["avg"], reliable_fraction=rf,
-                                          seconds=time.perf_counter() - t_it + result.seconds_before,
-                                          per_view=ev["per_view"]))
+        metrics["iterations"].append(iteration_row(k, ev, rf, time.perf_counter() - t_it + result.seconds_before))
         _save_teacher(teacher_path, teacher, occupancy, k, settings, metrics["iterations"])
         metrics["seconds_total"] = seconds_before + carried + time.perf_counter() - t_run
         atomic_write_text(metrics_path, json.dumps(metrics, indent=1))

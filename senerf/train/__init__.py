@@ -3,10 +3,11 @@
 Public API (see DESIGN.md): :class:`TrainConfig`, :class:`ModelConfig`, :func:`choose_model`,
 :func:`build_field` (:func:`nerf_description`: what ``field='nerf'`` builds), :class:`RayBatchSource`,
 :func:`train_field`, :func:`evaluate`, :func:`render_views`, :func:`psnr`, :func:`ssim`, :func:`save_checkpoint`,
-:func:`load_checkpoint`, :func:`finished_metrics`.
+:func:`load_checkpoint`; ``metrics.json``: :func:`metrics_document`, :func:`iteration_row`,
+:func:`finished_metrics`.
 """
 
-from .checkpoint import atomic_write_bytes, atomic_write_text, finished_metrics, load_checkpoint, save_checkpoint
+from .checkpoint import atomic_write_bytes, atomic_write_text, load_checkpoint, save_checkpoint
 from .config import (NERF_FREQS, NERF_HIDDEN, NERF_LAYERS, PRESETS, ModelConfig, TrainConfig, build_field,
                      camera_aabb, choose_model, nerf_description, nerf_refusal,
                      config_to_dict, differences_text, preset_train_config,
@@ -14,6 +15,7 @@ from .config import (NERF_FREQS, NERF_HIDDEN, NERF_LAYERS, PRESETS, ModelConfig,
 from .evaluate import depth_to_color, eval_images, evaluate, render_views, write_png
 from .loop import TrainResult, background_color, load_state_keeping_box, lr_factor, make_occupancy, train_field
 from .metrics import LPIPS_UNAVAILABLE, mse, psnr, ssim
+from .record import finished_metrics, iteration_row, metrics_document
 from .rays import RayBatchSource, camera_rays, per_view_intrinsics, ray_aabb_bounds, ray_dist_to_z_depth
 
 __all__ = [
@@ -25,5 +27,6 @@ __all__ = [
     "train_field", "TrainResult", "lr_factor", "make_occupancy", "background_color", "load_state_keeping_box",
     "evaluate", "eval_images", "render_views", "depth_to_color", "write_png",
     "psnr", "ssim", "mse", "LPIPS_UNAVAILABLE",
-    "save_checkpoint", "load_checkpoint", "finished_metrics", "atomic_write_bytes", "atomic_write_text",
+    "save_checkpoint", "load_checkpoint", "atomic_write_bytes", "atomic_write_text",
+    "metrics_document", "iteration_row", "finished_metrics",
 ]

@@ -8,7 +8,6 @@ so a crash leaves either the old or the new checkpoint, never half of one.
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 from typing import Any
 
@@ -17,7 +16,7 @@ import torch
 from senerf.atomic import atomic_write, atomic_write_bytes, atomic_write_text
 from senerf.errors import InputError
 
-__all__ = ["save_checkpoint", "load_checkpoint", "finished_metrics", "atomic_write_bytes", "atomic_write_text"]
+__all__ = ["save_checkpoint", "load_checkpoint", "atomic_write_bytes", "atomic_write_text"]
 
 
 def save_checkpoint(path: str | Path, state: dict[str, Any]) -> None:
@@ -47,16 +46,3 @@ def load_checkpoint(path: str | Path, map_location: str | torch.device = "cpu") 
         raise InputError(f"checkpoint holds a {type(state).__name__}, expected a dict", file=path)
     return state
 
-
-def finished_metrics(out_dir: str | Path, iteration: int = 0) -> dict | None:
-    """``out_dir/metrics.json`` when it records ``iteration`` (a row for it or a later one), else None (missing,
-    unreadable, or written before that iteration finished)."""
-    try:
-        metrics = json.loads((Path(out_dir) / "metrics.json").read_text())
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError):
-        return None
-    rows = metrics.get("iterations") if isinstance(metrics, dict) else None
-    if isinstance(rows, list) and any(isinstance(r, dict) and isinstance(r.get("iteration"), int)
-                                      and r["iteration"] >= iteration for r in rows):
-        return metrics
-    return None
