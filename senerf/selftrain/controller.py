@@ -17,9 +17,11 @@ Outputs under ``out_dir`` (DESIGN.md): ``iter_K/test/`` (``senerf.train.evaluate
 (``rgb_XXX.png`` teacher render, ``similarity_XXX.png`` grey = max similarity clipped to [0, 1],
 ``mask_XXX.png``: white reliable, blue unreliable with a prior target, black unreliable without one, grey
 background), ``metrics.json`` (atomic, after every iteration) and ``checkpoints/``: ``teacher.pt``
-(the finished iteration's field, atomic) and the trainer's own ``iter_K_train.pt``.  A killed run resumes
-from the last finished iteration (and inside an iteration from the trainer's checkpoint); everything in an
-iteration is seeded from ``(seed, K)``, so the resumed run repeats the same pseudo views.
+(the finished iteration's field, atomic), the trainer's own ``iter_K_train.pt`` and ``scene_files.json``
+(digests of the scene files the run reads).  A killed run resumes from the last finished iteration (and inside
+an iteration from the trainer's checkpoint); everything in an iteration is seeded from ``(seed, K)``, so the
+resumed run repeats the same pseudo views.  A folder whose run read other bytes from the scene's files is not
+resumed (:func:`senerf.data.scene_file_digests`, as ``senerf-fit`` checks its ``run.json``).
 
 Cameras are reached only through ``senerf.geometry`` (pose sampling, warps) and the trainer's rendering and
 ray-building functions (``render_views``, ``camera_rays``); this module does no projection math itself.
@@ -39,6 +41,7 @@ import numpy as np
 import torch
 
 from .. import geometry
+from ..data import changed_files, scene_file_digests
 from ..errors import InputError
 from ..train import (atomic_write_text, build_field, camera_rays, config_to_dict, differences_text, eval_images,
                      evaluate, finished_metrics, iteration_row, load_checkpoint, load_state_keeping_box, make_occupancy,
@@ -53,6 +56,7 @@ __all__ = ["SelfTrainConfig", "PseudoLabels", "run_selftraining", "estimate_reli
            "RELIABILITY_KINDS"]
 
 _CKPT_FORMAT = "senerf-selftrain-1"
+_FILES_RECORD = "scene_files.json"   # in checkpoints/: what the scene's files held when the run read them
 RELIABILITY_KINDS = ("features", "oracle")
 
 
@@ -526,6 +530,39 @@ def _check_settings(path: Path, state: dict, settings: dict) -> None:
         raise InputError(f"output folder holds a run with different settings; {hint}", file=path)
 
 
+def _scene_files_now(scene, train_idx: np.ndarray, test_idx: np.ndarray, oracle: bool) -> dict | None:
+    """:func:`senerf.data.scene_file_digests` of the files the run reads (the poses and cameras, the training
+    and test views' images, every view's with oracle reliability), or None when they are not all files on disk
+    (a scene built in memory): then there is nothing to compare."""
+    views = np.arange(scene.n_images) if oracle else np.union1d(train_idx, test_idx)
+    files = list(scene.source_files) + [scene.image_paths[int(i)] for i in views]
+    if not all(Path(f).is_file() for f in files):
+        return None
+    return scene_file_digests(scene, views)
+
+
+def _check_scene_files(record: Path, now: dict | None) -> None:
+    """Refuse a run folder whose run read other bytes from the scene's files than ``now`` (named, as
+    senerf-fit names them); a folder without ``record`` (made before it was written) cannot tell."""
+    if now is None or not record.is_file():
+        return
+    try:
+        then = json.loads(record.read_text())
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError):
+        then = None
+    if not isinstance(then, dict):
+        raise InputError("is not a scene-files record of senerf; use --overwrite or another --out", file=record)
+    lines = changed_files(then, now)
+    if lines:
+        raise InputError(f"holds a different run (scene files differ: {differences_text(lines)}); use --overwrite "
+                         f"or another --out", file=record.parent.parent)
+
+
+def _record_scene_files(record: Path, now: dict | None) -> None:
+    if now is not None and not record.is_file():
+        atomic_write_text(record, json.dumps(now, indent=1, sort_keys=True))
+
+
 def _load_teacher(path: Path, model, cfg_train, settings: dict, device):
     state = load_checkpoint(path, map_location=device)
     _check_settings(path, state, settings)
@@ -582,10 +619,13 @@ def run_selftraining(scene, train_idx, test_idx, model, train_cfg, cfg: SelfTrai
     ckpt_dir = out / "checkpoints"
     teacher_path = ckpt_dir / "teacher.pt"
     metrics_path = out / "metrics.json"
+    files_record = ckpt_dir / _FILES_RECORD
+    files_now = _scene_files_now(scene, train_idx, test_idx, cfg.reliability == "oracle")
     teacher, occupancy, start = None, None, 0
     seconds_before = 0.0
     if teacher_path.exists():
         teacher, occupancy, done, rows = _load_teacher(teacher_path, model, train_cfg, settings, device)
+        _check_scene_files(files_record, files_now)   # after the settings: those are named first, as senerf-fit does
         metrics["iterations"] = [it for it in rows if it["iteration"] <= done]
         seconds_before = float(sum(it.get("seconds", 0.0) for it in metrics["iterations"]))
         start = done + 1
@@ -596,6 +636,10 @@ def run_selftraining(scene, train_idx, test_idx, model, train_cfg, cfg: SelfTrai
                 return stored
         else:
             echo(f"selftrain: resuming after iteration {done} from {teacher_path}")
+    else:
+        _check_scene_files(files_record, files_now)
+        if not any(ckpt_dir.glob("*.pt")):   # a fresh run (a folder of an older one records them with its teacher)
+            _record_scene_files(files_record, files_now)
     rays = RayBatchSource.from_scene(scene, train_idx, model, device)
     extractor = None
     known_feats = None
@@ -644,6 +688,7 @@ def run_selftraining(scene, train_idx, test_idx, model, train_cfg, cfg: SelfTrai
         rf = None if reliable_fraction is None or math.isnan(reliable_fraction) else float(reliable_fraction)
         metrics["iterations"].append(iteration_row(k, ev, rf, time.perf_counter() - t_it + result.seconds_before))
         _save_teacher(teacher_path, teacher, occupancy, k, settings, metrics["iterations"])
+        _record_scene_files(files_record, files_now)
         metrics["seconds_total"] = seconds_before + carried + time.perf_counter() - t_run
         atomic_write_text(metrics_path, json.dumps(metrics, indent=1))
         echo(f"selftrain: iteration {k}: test PSNR {ev['psnr']:.2f} dB, SSIM {ev['ssim']:.3f}")

@@ -671,3 +671,73 @@ def test_the_labelling_line_without_foreground_and_without_the_prior():
         text = controller_mod._labels_text(empty, cfg)
     assert text == ("no foreground in them (the teacher renders every pixel below opacity 0.5): no colour, density "
                     "or prior labels, only empty space")
+
+
+def test_a_run_whose_scene_files_changed_is_not_resumed(tiny_scene, tmp_path, monkeypatch):
+    """The library checks the scene files' bytes as senerf-fit's run.json does: a folder whose run read other
+    bytes is refused, naming the file, before anything trains (also after a kill inside iteration 0)."""
+    import shutil
+
+    import imageio.v3 as iio
+
+    from senerf.data import load_scene
+    from senerf.train import TrainConfig, choose_model
+
+    root = tmp_path / "scene"
+    shutil.copytree(tiny_scene.root, root)
+    scene = load_scene(root)
+    train_idx, test_idx = scene.splits["train"][:3], scene.splits["test"]
+    model = choose_model(scene, train_idx, {"n_samples": 16, "resolution": 32, "occupancy_resolution": 16},
+                         echo=lambda s: None)
+    tcfg = TrainConfig(steps=8, batch_rays=128, warmup_steps=2, checkpoint_every=0, occupancy_warmup=4,
+                       occupancy_every=4)
+    base = SelfTrainConfig(iterations=0, n_pseudo_per_input=1, batch_reliable=64, batch_prior=16)
+    out = tmp_path / "run"
+    record = out / "checkpoints" / "scene_files.json"
+    real_train = controller_mod.train_field
+    calls = []
+
+    def run(cfg=base, the_scene=scene):
+        return controller_mod.run_selftraining(the_scene, train_idx, test_idx, model, tcfg, cfg, out, progress=False,
+                                               echo=lambda s: None)
+
+    def killed(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(controller_mod, "train_field", killed)
+    with pytest.raises(KeyboardInterrupt):
+        run()
+    names = [scene.image_paths[int(i)].relative_to(root).as_posix() for i in np.union1d(train_idx, test_idx)]
+    assert set(names) <= set(json.loads(record.read_text()))   # recorded before the first step
+
+    def counting(*args, **kwargs):
+        calls.append(1)
+        return real_train(*args, **kwargs)
+
+    monkeypatch.setattr(controller_mod, "train_field", counting)
+    photo = scene.image_paths[int(train_idx[1])]
+    original = photo.read_bytes()
+    iio.imwrite(photo, 255 - iio.imread(photo))
+    name = photo.relative_to(root).as_posix()
+    with pytest.raises(InputError, match=rf"holds a different run \(scene files differ: {name} changed\)"):
+        run()
+    assert calls == []
+    photo.write_bytes(original)
+    run()   # the same bytes again: resumes
+    assert calls == [1]
+    test_photo = scene.image_paths[int(test_idx[0])]
+    test_photo.write_bytes(test_photo.read_bytes() + b"\0")   # a test view: its PSNR would mix two images
+    with pytest.raises(InputError, match="scene files differ: .* changed"):
+        run(dataclasses.replace(base, iterations=1))
+    assert calls == [1]
+    # a folder made before the record existed cannot tell: it resumes and records the files from then on
+    record.unlink()
+    run(dataclasses.replace(base, iterations=1))
+    assert calls == [1, 1] and json.loads(record.read_text())[test_photo.relative_to(root).as_posix()]
+    # a scene built in memory has no files to compare: nothing recorded, nothing refused
+    in_memory = dataclasses.replace(scene, image_paths=tuple(Path(f"/nonexistent/{i}.png")
+                                                             for i in range(scene.n_images)))
+    out = tmp_path / "memory"
+    record = out / "checkpoints" / "scene_files.json"
+    run(the_scene=in_memory)
+    assert (out / "checkpoints" / "teacher.pt").exists() and not record.exists()
