@@ -90,7 +90,8 @@ def build_parser() -> argparse.ArgumentParser:
     m.add_argument("--samples", type=int_flag("--samples"), help="samples per ray")
     m.add_argument("--hidden", type=int_flag("--hidden"), help="width of the K-Planes MLPs (default 32)")
     m.add_argument("--aabb", type=float_flag("--aabb", positive=True),
-                   help="half size of a cube AABB around the origin")
+                   help="half size of a cube AABB around the world origin (object scenes; forward-facing ones "
+                        "are fitted in NDC's fixed box)")
     m.add_argument("--background", choices=("random", "white", "black"), help="training background")
     m.add_argument("--no-view-dependence", action="store_true", help="colour ignores the view direction")
     m.add_argument("--no-occupancy", action="store_true", help="no occupancy grid")
@@ -445,6 +446,10 @@ def _run(args, argv) -> int:
                f"limits {FORWARD_FACING_DEG:g} and {MAX_RAY_DEG:g} for forward-facing; --scene-kind to choose")
         print(f"{PROG}: fitted as {scene.kind.replace('_', '-')}: camera axes within {axis:.1f} degrees of their "
               f"mean direction, rays within {ray:.1f} ({why})")
+    if args.aabb and scene.kind == "forward_facing":   # the flag's box is in world units around the origin
+        raise InputError("a forward-facing scene is fitted in NDC, whose box is fixed ([-1.5, 1.5] x [-1.5, 1.5] x "
+                         "[-1, 1]); --aabb (a cube in world units) applies to object scenes", file=scene_dir,
+                         field="--aabb")
     model = choose_model(scene, train_idx, {**PRESETS[args.preset]["model"], **_model_overrides(args)})
     _check_model_fits(model, device)
     if fmt == "colmap" and scene.kind == "object":

@@ -663,6 +663,17 @@ def test_a_forward_facing_colmap_capture_is_not_checked_against_a_box(tmp_path, 
     assert np.isfinite(json.loads((tmp_path / "o" / "metrics.json").read_text())["iterations"][0]["psnr"])
 
 
+def test_aabb_is_refused_for_a_forward_facing_capture_before_anything_is_written(tmp_path, capsys):
+    # before, --aabb 2 on an LLFF/COLMAP forward-facing capture replaced the NDC box with [-2, 2]^3 in NDC
+    # (the flag means world units around the origin), without a word (so at 534d38e)
+    root, _ = _colmap_writers().ring_scene(tmp_path / "ff", True, [0, 5, 10, 15, 20], far_points=60)
+    out = tmp_path / "o"
+    assert main([str(root), "--out", str(out), "--aabb", "2", *SMALL]) == 2
+    line = _one_error_line(capsys)
+    assert f"{root}: --aabb: a forward-facing scene is fitted in NDC" in line and "applies to object scenes" in line
+    assert not out.exists()
+
+
 def test_the_printed_views_stop_at_twelve(tmp_path, capsys):
     from senerf.procedural.export import export_blender_scene
 
