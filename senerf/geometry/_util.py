@@ -9,7 +9,8 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["float_dtype", "as_float", "check_last", "check_pose", "as_4x4", "unit_and_norm", "pow2_scale"]
+__all__ = ["float_dtype", "as_float", "check_last", "check_pose", "as_4x4", "unit_and_norm", "pow2_scale",
+           "broadcast_batch"]
 
 
 def float_dtype(x) -> np.dtype:
@@ -80,3 +81,13 @@ def pow2_scale(*vs: np.ndarray) -> np.ndarray:
     peak = np.max([np.max(np.abs(v), axis=-1, keepdims=True) for v in vs], axis=0)
     _, exponent = np.frexp(peak)  # peak = m 2**exponent, m in [0.5, 1): 2**(exponent - 1) <= peak
     return np.where(peak > 0, np.ldexp(1.0, exponent - 1), 1.0)
+
+
+def broadcast_batch(*named: tuple) -> tuple:
+    """The broadcast of the batch shapes ``(name, shape)``, or a ValueError naming the arguments that clash
+    (NumPy's own message names none)."""
+    try:
+        return np.broadcast_shapes(*(shape for _, shape in named))
+    except ValueError:
+        what = " and ".join(f"{name} {tuple(shape)}" for name, shape in named)
+        raise ValueError(f"batch shapes of {what} do not broadcast") from None

@@ -101,6 +101,8 @@ class Intrinsics:
         w = _size(width, "width")
         h = _size(height, "height")
         f = 0.5 * w / math.tan(0.5 * math.radians(fov))
+        if not math.isfinite(f):   # a field of view so small that the focal length overflows
+            raise ValueError(f"Intrinsics.fov_x_deg: {fov_x_deg!r} degrees gives an infinite focal length")
         return cls(f, f, 0.5 * w, 0.5 * h, w, h)
 
     @property

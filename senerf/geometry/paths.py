@@ -12,7 +12,7 @@ import numpy as np
 
 from ._util import float_dtype
 from .poses import POSE_ATOL, look_at, validate_rigid
-from .spherical import closest_point_to_axes, default_up, pose_from_spherical, spherical_from_pose
+from .spherical import closest_point_to_axes, default_up, pose_from_spherical, _spherical_angles, spherical_from_pose
 
 __all__ = ["orbit_path", "spiral_path", "spiral_focus_depth"]
 
@@ -68,7 +68,7 @@ def orbit_path(input_c2w, n: int, center=None, up=None, elevation: float | None 
     a = arr.astype(np.float64)
     c = closest_point_to_axes(a) if center is None else np.asarray(center, dtype=np.float64)
     u = default_up(a) if up is None else np.asarray(up, dtype=np.float64)
-    az, el, r = spherical_from_pose(a, c, u)
+    az, el, r = _spherical_angles(a, c, u, arr.dtype)
     el_path = float(np.mean(el)) if elevation is None else float(elevation)
     r_path = float(np.mean(r)) if radius is None else float(radius)
     azimuths = az[0] + 360.0 * np.arange(count, dtype=np.float64) / count
@@ -151,7 +151,7 @@ def spiral_path(input_c2w, n: int, focus_depth: float, radii=None, rotations: fl
     local = rad * np.stack([np.cos(theta), np.sin(theta), np.sin(float(z_rate) * theta)], axis=-1)
     eyes = centre + local @ rot.T
     target = centre + focus * rot[:, 2]
-    if (np.linalg.norm(eyes - target, axis=-1) <= 1e-9 * max(1.0, focus)).any():
+    if (np.linalg.norm(eyes - target, axis=-1) <= 1e-9 * focus).any():   # relative: small scenes too
         raise ValueError("spiral_path: a frame reaches the focus point; use a larger focus_depth or smaller radii")
     poses = look_at(eyes, np.broadcast_to(target, eyes.shape), up=image_up)
     return poses.astype(float_dtype(arr), copy=False)

@@ -13,7 +13,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from ._util import as_float, check_last
+from ._util import as_float, broadcast_batch, check_last
 from .intrinsics import Intrinsics
 from .poses import POSE_ATOL, invert_rigid, validate_rigid
 
@@ -63,6 +63,7 @@ def project(points_world, intrinsics: Intrinsics, c2w, near: float = 1e-8):
     pts = as_float(points_world, "points_world")
     check_last(pts, (3,), "points_world")
     mat = projection_matrix(intrinsics, c2w)
+    broadcast_batch(("points_world", pts.shape[:-1]), ("c2w", mat.shape[:-2]))
     with np.errstate(invalid="ignore", over="ignore"):  # non-finite points are reported invalid, not warned
         return _project(pts, mat, intrinsics, near)
 
@@ -166,7 +167,11 @@ def unproject(uv, z_depth, intrinsics: Intrinsics, c2w) -> np.ndarray:
         c2w: ``(..., 4, 4)`` or ``(..., 3, 4)``, batch broadcast against ``uv``'s.
 
     Returns:
-        ``(..., 3)`` world points, dtype of ``uv``.
+        ``(..., 3)`` world points, dtype of ``uv``; a non-finite ``uv`` or ``z_depth`` gives a non-finite point
+        (propagated, as NumPy does, not checked: unlike :func:`project`, whose ``valid`` reports it).
+
+    Raises:
+        ValueError: batches of ``uv``, ``z_depth`` and ``c2w`` that do not broadcast (named).
 
     Example:
         >>> k = Intrinsics(500.0, 500.0, 256.0, 256.0, 512, 512)
@@ -180,6 +185,7 @@ def unproject(uv, z_depth, intrinsics: Intrinsics, c2w) -> np.ndarray:
     dt = uv_a.dtype
     z = as_float(z_depth, "z_depth", dt)
     pose = validate_rigid(c2w, atol=POSE_ATOL).astype(np.float64).astype(dt)
+    broadcast_batch(("uv", uv_a.shape[:-1]), ("z_depth", z.shape), ("c2w", pose.shape[:-2]))
     k = intrinsics
     z_b = np.broadcast_to(z, np.broadcast_shapes(z.shape, uv_a.shape[:-1]))
     cam = np.empty(z_b.shape + (3,), dtype=dt)

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ._util import as_float, check_last
+from ._util import as_float, broadcast_batch, check_last, unit_and_norm
 from .intrinsics import Intrinsics
 from .poses import POSE_ATOL, validate_rigid
 
@@ -45,8 +45,8 @@ def _camera_dirs(uv: np.ndarray, k: Intrinsics):
     d[..., 0] = (uv[..., 0] - k.cx) / k.fx
     d[..., 1] = (uv[..., 1] - k.cy) / k.fy
     d[..., 2] = 1.0
-    z_per_dist = 1.0 / np.linalg.norm(d, axis=-1)
-    return d * z_per_dist[..., None], z_per_dist
+    unit, norm = unit_and_norm(d)   # scaled: unit even where |d|^2 overflows (a focal length of 1e-160)
+    return unit, 1.0 / norm
 
 
 def rays_from_pixels(uv, intrinsics: Intrinsics, c2w):
@@ -61,6 +61,9 @@ def rays_from_pixels(uv, intrinsics: Intrinsics, c2w):
         ``origins (..., 3)`` (camera centres), ``dirs (..., 3)`` unit world directions,
         ``z_per_dist (...)``; dtype of ``uv``.
 
+    Raises:
+        ValueError: a non-finite ``uv``, or batches of ``uv`` and ``c2w`` that do not broadcast (named).
+
     Example:
         >>> k = Intrinsics(500.0, 500.0, 256.0, 256.0, 512, 512)
         >>> o, d, zpd = rays_from_pixels([256.0, 256.0], k, np.eye(4))
@@ -70,7 +73,10 @@ def rays_from_pixels(uv, intrinsics: Intrinsics, c2w):
     _check_intrinsics(intrinsics)
     uv_a = as_float(uv, "uv")
     check_last(uv_a, (2,), "uv")
+    if not np.isfinite(uv_a).all():
+        raise ValueError("uv: image points must be finite")
     pose = validate_rigid(c2w, atol=POSE_ATOL).astype(np.float64)
+    broadcast_batch(("uv", uv_a.shape[:-1]), ("c2w", pose.shape[:-2]))
     dirs_cam, zpd = _camera_dirs(uv_a.astype(np.float64), intrinsics)
     dirs = np.einsum("...ij,...j->...i", pose[..., :3, :3], dirs_cam)
     origins = np.broadcast_to(pose[..., :3, 3], dirs.shape)

@@ -110,7 +110,8 @@ def spherical_from_pose(c2w, center=(0.0, 0.0, 0.0), up=(0.0, 0.0, 1.0)):
     """``(azimuth, elevation, radius)`` of camera centres around ``center`` (inverse of :func:`pose_from_spherical`).
 
     Azimuth is in ``(-180, 180]``, elevation in ``[-90, 90]`` (degrees).  Only the camera centre matters,
-    except at the poles (horizontal offset below ``1e-12 r``), where the azimuth of the position is undefined:
+    except at the poles (horizontal offset below ``1e-12 r``, or below 8 units in the last place of the
+    coordinates' dtype: ``8 eps max(|t|, |center|)``), where the azimuth of the position is undefined:
     there the azimuth is read from the camera x axis as the azimuth tangent (``atan2(-x.e1, x.e2)``), which
     returns the azimuth that :func:`pose_from_spherical` was given.
 
@@ -126,7 +127,16 @@ def spherical_from_pose(c2w, center=(0.0, 0.0, 0.0), up=(0.0, 0.0, 1.0)):
     """
     arr = check_pose(c2w)
     dtype = arr.dtype
-    a = arr.astype(np.float64)
+    az, el, r = _spherical_angles(arr.astype(np.float64), center, up, dtype)
+    az = az.astype(dtype)
+    az = np.where(az <= -180.0, dtype.type(180.0), az)  # -179.999999 may round to -180 in float32
+    return az, el.astype(dtype), r.astype(dtype)
+
+
+def _spherical_angles(a: np.ndarray, center, up, dtype) -> tuple:
+    """:func:`spherical_from_pose` in float64 of float64 poses ``a (..., 4, 4)`` that carry the rounding of
+    ``dtype`` (poses made in float32 and widened, as ``sample_pseudo_views`` and ``orbit_path`` compute): the
+    pole test scales with ``dtype``'s precision.  Azimuth in ``(-180, 180]`` before any cast."""
     c = as_float(center, "center", np.float64)
     check_last(c, (3,), "center")
     e1, e2, u = spherical_basis(up)
@@ -140,12 +150,13 @@ def spherical_from_pose(c2w, center=(0.0, 0.0, 0.0), up=(0.0, 0.0, 1.0)):
     p1, p2 = np.sum(p_unit * e1, axis=-1), np.sum(p_unit * e2, axis=-1)
     el = np.degrees(np.arctan2(pu, np.hypot(p1, p2)))
     x = a[..., :3, 0]
-    pole = np.hypot(p1, p2) <= 1e-12
-    az = np.where(pole, np.arctan2(-np.sum(x * e1, axis=-1), np.sum(x * e2, axis=-1)), np.arctan2(p2, p1))
-    az = np.degrees(az)
-    az = np.where(az <= -180.0, az + 360.0, az).astype(dtype)
-    az = np.where(az <= -180.0, dtype.type(180.0), az)  # -179.999999 may round to -180 in float32
-    return az, el.astype(dtype), r.astype(dtype)
+    # a camera put on the pole is off it by the rounding of its own dtype (~1e-7 |t| in float32), and there the
+    # position's azimuth is that rounding: the pole test scales with the coordinates' precision
+    scale = np.maximum(np.abs(a[..., :3, 3]).max(axis=-1), np.abs(c).max(axis=-1))
+    pole = np.hypot(p1, p2) <= np.maximum(1e-12, 8.0 * np.finfo(dtype).eps * scale / r)
+    az = np.degrees(np.where(pole, np.arctan2(-np.sum(x * e1, axis=-1), np.sum(x * e2, axis=-1)),
+                             np.arctan2(p2, p1)))
+    return np.where(az <= -180.0, az + 360.0, az), el, r
 
 
 def closest_point_to_axes(c2w) -> np.ndarray:
@@ -213,6 +224,8 @@ def default_up(input_c2w) -> np.ndarray:
     a = np.asarray(input_c2w, dtype=np.float64)
     if a.ndim != 3 or a.shape[1:] not in ((4, 4), (3, 4)) or a.shape[0] < 1:
         raise ValueError(f"input_c2w: expected shape (m, 4, 4) with m >= 1, got {a.shape}")
+    if not np.isfinite(a[:, :3, :3]).all():
+        raise ValueError("default_up: input_c2w holds non-finite rotations")
     mean_up = -a[:, :3, 1].mean(axis=0)
     norm = np.linalg.norm(mean_up)
     x = a[:, :3, 0]
@@ -232,7 +245,8 @@ def sample_pseudo_views(input_c2w, max_offset_deg, n, rng, center=None, up=None)
     Pseudo view ``k`` comes from input view ``source_index[k] = k % m`` (round robin over the ``m`` inputs,
     so every input gets ``n // m`` or ``n // m + 1`` views).  Its azimuth is the source's azimuth plus an
     offset drawn uniformly from ``[-max_offset, max_offset]``; its elevation is drawn uniformly from
-    ``[el - max_offset, el + max_offset]`` intersected with ``[-89.9, 89.9]`` (so it never crosses a pole);
+    ``[el - max_offset, el + max_offset]`` intersected with ``[-89.9, 89.9]``, or ``[-|el|, |el|]`` for a source
+    nearer a pole (so it never crosses one, and offset 0 returns a top view too);
     its radius is the source's distance to ``center``.  The source camera is carried there rigidly, by the
     rotation about ``center`` that takes the :func:`pose_from_spherical` pose at the source's angles to the
     one at the new angles (an azimuth turn about ``up`` after an elevation turn about the source's azimuth
@@ -252,6 +266,10 @@ def sample_pseudo_views(input_c2w, max_offset_deg, n, rng, center=None, up=None)
     Returns:
         ``(c2w (n, 4, 4), source_index (n,) int64)``; ``c2w`` has the dtype of ``input_c2w``.
 
+    Raises:
+        ValueError: bad arguments (named), or an input camera centre at ``center`` (within rounding), as when
+            the inputs share one centre and ``center`` is left to :func:`closest_point_to_axes`.
+
     Example:
         >>> inputs = pose_from_spherical(np.array([0.0, 120.0]), 20.0, 4.0)
         >>> c2w, src = sample_pseudo_views(inputs, 10.0, 4, np.random.default_rng(0))
@@ -269,19 +287,32 @@ def sample_pseudo_views(input_c2w, max_offset_deg, n, rng, center=None, up=None)
     off = float(max_offset_deg)
     if not np.isfinite(off) or off < 0:
         raise ValueError(f"max_offset_deg: must be finite and >= 0, got {max_offset_deg!r}")
-    if int(n) != n or n < 0:
+    if isinstance(n, bool) or not isinstance(n, (int, np.integer)) and not (
+            isinstance(n, (float, np.floating)) and float(n).is_integer()) or n < 0:
         raise ValueError(f"n: must be an integer >= 0, got {n!r}")
     n = int(n)
     a = as_4x4(arr.astype(np.float64))
-    if center is None:
+    guessed = center is None
+    if guessed:
         center = closest_point_to_axes(a)
-    c = as_float(center, "center", np.float64).reshape(3)
+    c = as_float(center, "center", np.float64)
+    check_last(c, (3,), "center")
+    c = c.reshape(3)
     u = default_up(a) if up is None else as_float(up, "up", np.float64).reshape(3)
-    az0, el0, r0 = spherical_from_pose(a, c, u)
+    # a camera centre within rounding of ``center`` has no direction from it (inputs sharing one centre)
+    dist = np.linalg.norm(a[:, :3, 3] - c, axis=-1)
+    tiny = dist <= 64.0 * np.finfo(arr.dtype).eps * max(np.abs(c).max(), np.abs(a[:, :3, 3]).max())
+    if tiny.any():
+        i = int(np.flatnonzero(tiny)[0])
+        why = " (the point nearest the inputs' optical axes, which meet at their common centre)" if guessed else ""
+        raise ValueError(f"sample_pseudo_views: input_c2w[{i}]'s camera centre coincides with center{why}; pseudo "
+                         f"views turn about center, so pass one away from the cameras")
+    az0, el0, r0 = _spherical_angles(a, c, u, arr.dtype)
     src = np.arange(n, dtype=np.int64) % arr.shape[0]
     d_az = rng.uniform(-off, off, size=n)
     t_el = rng.uniform(0.0, 1.0, size=n)
-    lim = MAX_PSEUDO_ELEVATION_DEG
+    # never past a pole, and never narrower than the source's own elevation (offset 0 gives a top view back)
+    lim = np.maximum(MAX_PSEUDO_ELEVATION_DEG, np.abs(el0[src]))
     lo = np.clip(el0[src] - off, -lim, lim)
     hi = np.clip(el0[src] + off, -lim, lim)
     el = lo + t_el * (hi - lo)

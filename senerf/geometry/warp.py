@@ -127,7 +127,7 @@ def reproject(
             raise ValueError(f"z_depth_dst: expected shape {batch + (hd, wd)}, got {depth_dst.shape}")
         with np.errstate(invalid="ignore"):
             no_surface = ~(depth_dst > 0) | ~np.isfinite(depth_dst)
-        depth_dst = np.where(no_surface, np.inf, depth_dst).astype(dt).reshape(dst.shape[0], -1)
+        depth_dst = np.where(no_surface, np.inf, depth_dst).astype(dt).reshape(dst.shape[0], hd * wd)
     elif forward_backward:
         raise ValueError("reproject: forward_backward=True needs z_depth_dst")
 

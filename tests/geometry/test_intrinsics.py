@@ -120,3 +120,8 @@ def test_resized_non_square_uses_each_axis_ratio():
     ray_small = np.linalg.solve(r.K, [0.5, 0.5, 1.0])
     ray_full = np.linalg.solve(k.K, [1.0, 1.5, 1.0])
     np.testing.assert_allclose(ray_small, ray_full, rtol=1e-14)
+
+
+def test_a_field_of_view_too_small_for_a_finite_focal_length_is_named():
+    with pytest.raises(ValueError, match=r"^Intrinsics.fov_x_deg: 1e-320 degrees gives an infinite focal length"):
+        Intrinsics.from_fov(1e-320, 800, 600)

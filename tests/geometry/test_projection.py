@@ -158,3 +158,15 @@ def test_float32_bounds_are_tested_after_rounding():
         uv, _, ok = project(pts.astype(dtype), k, np.eye(4))
         assert bool(ok[0]) == (dtype == np.float64)
         assert not ok[0] or uv[0, 0] < 4
+
+
+def test_clashing_batches_are_named():
+    k = Intrinsics(100.0, 100.0, 2.0, 2.0, 4, 4)
+    poses = np.stack([np.eye(4)] * 5)
+    with pytest.raises(ValueError, match=r"batch shapes of points_world \(7,\) and c2w \(5,\) do not broadcast"):
+        project(np.zeros((7, 3)), k, poses)
+    with pytest.raises(ValueError, match=r"uv \(7,\) and z_depth \(\) and c2w \(5,\) do not broadcast"):
+        unproject(np.zeros((7, 2)), 1.0, k, poses)
+    with pytest.raises(ValueError, match=r"uv \(7,\) and z_depth \(5,\) and c2w \(\) do not broadcast"):
+        unproject(np.zeros((7, 2)), np.ones(5), k, np.eye(4))
+    assert unproject(np.zeros((5, 2)), np.ones(5), k, poses).shape == (5, 3)   # broadcasting ones still do

@@ -333,3 +333,68 @@ def test_sample_pseudo_views_offsets_go_both_ways(dtype):
     assert (np.abs(d_az) <= 10 + tol).all() and (np.abs(d_el) <= 10 + tol).all()
     assert d_az.min() < -5 and d_az.max() > 5
     assert d_el.min() < -5 and d_el.max() > 5
+
+
+@pytest.mark.parametrize("center", [(0.1, 0.2, 0.3), (1e3, -2e3, 5.0)])
+@pytest.mark.parametrize("elevation", [90.0, -90.0])
+def test_float32_cameras_put_on_a_pole_keep_their_azimuth(center, elevation):
+    # A float32 camera centre is off the pole by its own rounding (~1e-7 |t|), far more than the old absolute
+    # 1e-12 r pole test, so the "azimuth" came from that rounding: 63.43 instead of 30 at centre (0.1, 0.2, 0.3)
+    # (so at bdc4ebf), and sample_pseudo_views / orbit_path carried it on. Expected values: the azimuths given,
+    # and for the derived functions the same calls on float64 poses (which were right before).
+    for az in (30.0, -150.0, 180.0):
+        pose = pose_from_spherical(np.float32(az), elevation, 4.0, center=center)
+        assert pose.dtype == np.float32
+        got = float(spherical_from_pose(pose, center=center)[0])
+        assert abs((got - az + 180.0) % 360.0 - 180.0) < 1e-3, (az, got)
+    az_in, el_in = np.array([30.0, 150.0]), np.array([elevation, 20.0])
+    inputs32 = pose_from_spherical(az_in.astype(np.float32), el_in, 4.0, center=center)
+    inputs64 = pose_from_spherical(az_in, el_in, 4.0, center=center)
+    for offset in (0.0, 5.0):
+        pseudo32, _ = sample_pseudo_views(inputs32, offset, 6, np.random.default_rng(0), center=center, up=(0, 0, 1))
+        pseudo64, _ = sample_pseudo_views(inputs64, offset, 6, np.random.default_rng(0), center=center, up=(0, 0, 1))
+        assert np.abs(pseudo32 - pseudo64).max() < 1e-3 * max(1.0, np.abs(center).max())
+    from senerf.geometry import orbit_path
+
+    frames = orbit_path(inputs32, 4, center=center, up=(0, 0, 1))
+    az_frames = spherical_from_pose(frames.astype(np.float64), center=center)[0]
+    # float32 frames 2e3 from the origin hold their azimuth to ~1e-3 degrees (the bug was 33 degrees)
+    tol = 1e-3 * max(1.0, np.abs(center).max() / 100.0)
+    assert np.allclose((az_frames - np.array([30.0, 120.0, 210.0, 300.0]) + 180.0) % 360.0 - 180.0, 0.0, atol=tol)
+
+
+@pytest.mark.parametrize("dtype", DTYPES)
+def test_offset_zero_gives_back_views_at_the_poles_and_wider_offsets_never_cross_one(dtype):
+    # the elevation window was clipped to +-89.9, so a top view (90) came back at 89.9, 6e-3 away (so at bdc4ebf)
+    inputs = pose_from_spherical(np.array([30.0, 120.0, -60.0]), np.array([90.0, 20.0, -90.0]), 4.0).astype(dtype)
+    same, _ = sample_pseudo_views(inputs, 0.0, 3, np.random.default_rng(0), center=(0, 0, 0), up=(0, 0, 1))
+    assert np.abs(same - inputs).max() < (1e-12 if dtype == np.float64 else 1e-5)
+    wide, src = sample_pseudo_views(inputs, 10.0, 30, np.random.default_rng(1), center=(0, 0, 0), up=(0, 0, 1))
+    el = spherical_from_pose(wide.astype(np.float64))[1]
+    assert (el[src == 0] >= 80.0 - 1e-4).all() and (el[src == 0] <= 90.0).all()
+    assert (el[src == 2] <= -80.0 + 1e-4).all() and (el[src == 2] >= -90.0).all()
+    assert is_rigid(wide, atol=1e-5).all()
+
+
+@pytest.mark.parametrize("eye", [(0.0, 0.0, 0.0), (1.0, 2.0, 3.0), (1e4, -3.0, 0.5)])
+def test_inputs_sharing_one_camera_centre_are_refused_naming_center(eye):
+    # cameras turned about one point: their optical axes meet at it, so the default centre is a camera centre
+    # plus rounding; at (1, 2, 3) that gave views turned about a noise-chosen axis, at 0 another message
+    same = np.stack([look_at(eye, np.add(eye, d)) for d in ([1, 0, 0], [0, 1, 0], [0.3, 0.2, -1.0])])
+    with pytest.raises(ValueError, match=r"input_c2w\[0\]'s camera centre coincides with center \(the point nearest"):
+        sample_pseudo_views(same, 5.0, 3, np.random.default_rng(0))
+    with pytest.raises(ValueError, match=r"input_c2w\[1\]'s camera centre coincides with center; pseudo"):
+        sample_pseudo_views(np.stack([look_at(np.add(eye, (5.0, 0.0, 0.0)), eye), same[0]]), 5.0, 3,
+                            np.random.default_rng(0), center=eye, up=(0, 0, 1))
+
+
+def test_sample_pseudo_views_names_bad_counts_and_centres():
+    inputs = pose_from_spherical(np.array([0.0, 120.0]), 20.0, 4.0)
+    for n in (np.nan, np.inf, 2.5, True, "3"):
+        with pytest.raises(ValueError, match="^n: must be an integer >= 0"):
+            sample_pseudo_views(inputs, 1.0, n, np.random.default_rng(0))
+    assert sample_pseudo_views(inputs, 1.0, 3.0, np.random.default_rng(0))[0].shape == (3, 4, 4)
+    with pytest.raises(ValueError, match="center"):
+        sample_pseudo_views(inputs, 1.0, 2, np.random.default_rng(0), center=(0.0, 0.0))
+    with pytest.raises(ValueError, match="default_up: input_c2w holds non-finite rotations"):
+        default_up(np.full((2, 4, 4), np.nan))

@@ -363,3 +363,12 @@ def test_warps_in_the_outer_half_pixel_of_a_steep_destination_stay_valid(dtype):
     _, ok0 = reproject(z_src, k, src, k, dst, z_depth_dst=z_dst.astype(dtype), slope_tol=0.0)
     lost = ok_plain & ~ok0
     assert lost.sum() > 100 and not (lost & ~outer).any()
+
+
+def test_an_empty_batch_of_destinations_with_their_depths():
+    # reshape(0, -1) is ambiguous: an empty batch with z_depth_dst raised where one without it returned empty
+    # arrays (so at bdc4ebf)
+    k = Intrinsics(100.0, 100.0, 2.0, 2.0, 4, 4)
+    for depths in (None, np.zeros((0, 4, 4))):
+        uv, valid = reproject(np.full((4, 4), 2.0), k, np.eye(4), k, np.zeros((0, 4, 4)), z_depth_dst=depths)
+        assert uv.shape == (0, 4, 4, 2) and valid.shape == (0, 4, 4)
