@@ -7,6 +7,7 @@ print it as one ``<prog>: error: argument --flag: <problem>`` line and exit with
 from __future__ import annotations
 
 import argparse
+import errno
 import signal
 import sys
 import threading
@@ -93,6 +94,11 @@ def check_device(device: str, flag: str = "--device") -> str:
     return device
 
 
+#: OSError numbers that say a path the user gave cannot be used as it is (permissions, a name too long, a loop
+#: of links): bad input, reported in one line with the path, wherever a loader met it
+_USER_ERRNOS = frozenset({errno.EACCES, errno.EPERM, errno.ENAMETOOLONG, errno.ELOOP})
+
+
 def run_command(prog: str, body, interrupted: str) -> int:
     """``body()``'s exit status, with every way out of a command mapped to one: 2 for bad input (one line
     ``<prog>: error: <message>``, no traceback), argparse's own status for ``--help`` / ``--version``, 130 when
@@ -119,6 +125,14 @@ def run_command(prog: str, body, interrupted: str) -> int:
     except KeyboardInterrupt:
         print(f"{prog}: interrupted ({interrupted})", file=sys.stderr)
         return 130
+    except OSError as exc:
+        if exc.errno not in _USER_ERRNOS or not exc.filename:
+            traceback.print_exc()
+            print(f"{prog}: internal error (please report it with the traceback above)", file=sys.stderr)
+            return 1
+        # a file or folder of the user's we may not read or search (or name): theirs to fix, one line
+        print(f"{prog}: error: {exc.filename}: {exc.strerror or exc}", file=sys.stderr)
+        return 2
     except Exception:  # an internal error: keep the traceback for the bug report
         traceback.print_exc()
         print(f"{prog}: internal error (please report it with the traceback above)", file=sys.stderr)

@@ -118,3 +118,27 @@ def test_run_command_treats_sigterm_as_an_interrupt_and_restores_the_handler(cap
     assert run_command("prog", body, "rerun it") == 130
     assert capsys.readouterr().err == "prog: interrupted (rerun it)\n" and cleaned == [True]
     assert signal.getsignal(signal.SIGTERM) == before
+
+
+def test_run_command_reports_a_path_the_user_may_not_read_in_one_line(capsys, tmp_path):
+    # a scene folder at chmod 000 (or a name too long) reached a loader's is_file / iterdir as a traceback
+    # and exit 1 (so at 2e4108c); other OS errors stay internal ones, with the traceback
+    import errno
+
+    from senerf.cliargs import run_command
+
+    def raising(exc):
+        def body():
+            raise exc
+        return body
+
+    scene = str(tmp_path / "scene")
+    assert run_command("prog", raising(PermissionError(errno.EACCES, "Permission denied", scene)), "x") == 2
+    assert capsys.readouterr().err == f"prog: error: {scene}: Permission denied\n"
+    too_long = OSError(errno.ENAMETOOLONG, "File name too long", scene + "/" + "a" * 300)
+    assert run_command("prog", raising(too_long), "x") == 2
+    assert capsys.readouterr().err.count("\n") == 1
+    assert run_command("prog", raising(OSError(errno.ENOSPC, "No space left on device", scene)), "x") == 1
+    assert "Traceback" in capsys.readouterr().err
+    assert run_command("prog", raising(PermissionError(errno.EACCES, "Permission denied")), "x") == 1   # no path
+    capsys.readouterr()

@@ -52,8 +52,12 @@ IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".exr", ".bmp", ".tif", ".tiff", ".we
 
 def read_json(path: Path) -> dict:
     """Parse a JSON file whose top level must be an object; ``InputError`` for missing/malformed files."""
-    if not path.is_file():
-        raise InputError("file not found", file=path)
+    try:
+        found = path.is_file()
+    except OSError as exc:
+        raise InputError(f"cannot read ({exc.strerror or exc})", file=path) from None
+    if not found:
+        raise InputError("file not found" if not path.exists() else "is not a file", file=path)
     try:
         with open(path, "r", encoding="utf-8") as fh:
             data = json.load(fh)
@@ -61,6 +65,10 @@ def read_json(path: Path) -> dict:
         raise InputError(f"malformed JSON (line {exc.lineno}, column {exc.colno}: {exc.msg})", file=path) from None
     except (OSError, UnicodeDecodeError) as exc:
         raise InputError(f"cannot read ({exc})", file=path) from None
+    except RecursionError:
+        raise InputError("malformed JSON (nested too deeply to read)", file=path) from None
+    except ValueError as exc:   # Python's limit on an integer's digits
+        raise InputError(f"malformed JSON ({str(exc).splitlines()[0]})", file=path) from None
     if not isinstance(data, dict):
         raise InputError(f"top level must be a JSON object, got {type(data).__name__}", file=path)
     return data
@@ -166,6 +174,8 @@ def resolve_inside(root: Path, rel: str, file: Path, field: str) -> Path:
     norm = os.path.normpath(rel.replace("\\", "/"))
     if norm == ".." or norm.startswith("../"):
         raise InputError(f"path {rel!r} leaves the scene folder", file=file, field=field)
+    if norm == ".":   # the folder itself (a loader adding a suffix would read its sibling <folder>.png)
+        raise InputError(f"path {rel!r} names the folder itself, not a file in it", file=file, field=field)
     return root / norm
 
 
@@ -184,6 +194,37 @@ def _png_bit_depth(path: Path) -> int | None:
     return None
 
 
+#: Pillow modes read as they are (samples as stored); others are converted (:func:`_read_pillow`).
+_PILLOW_AS_IS = ("1", "L", "LA", "RGB", "RGBA", "I;16", "I;16B", "I;16L", "F")
+
+
+def _read_pillow(path: Path) -> np.ndarray:
+    """Decode with Pillow, as stored: grey, grey+alpha, RGB, RGBA, 16-bit grey or float; a palette image
+    becomes RGBA when its palette has transparency (RGB otherwise), CMYK / YCbCr / premultiplied RGBa become
+    RGB(A) (read as they are, CMYK's four channels would pass for RGBA).  The EXIF orientation tag is not applied:
+    the pixels are read as stored, as COLMAP reads them to compute the poses.
+
+    Raises:
+        InputError: a mode with no RGB reading (without file and field: the caller adds them).
+    """
+    from PIL import Image
+
+    with Image.open(path) as im:
+        mode = im.mode
+        if mode in ("P", "PA"):
+            im = im.convert("RGBA" if mode == "PA" or "transparency" in im.info else "RGB")
+        elif mode in ("CMYK", "YCbCr", "LAB", "HSV"):
+            im = im.convert("RGB")
+        elif mode == "RGBa":
+            im = im.convert("RGBA")
+        elif mode == "La":
+            im = im.convert("LA")
+        elif mode not in _PILLOW_AS_IS:
+            raise InputError(f"image {path} has Pillow mode {mode!r}, which senerf does not read; save it as 8- or "
+                             f"16-bit RGB(A) or grey")
+        return np.asarray(im)
+
+
 def read_rgba(path: Path, field: str, file: Path | None = None) -> np.ndarray:
     """Decode one image to float32 ``(H, W, 3)`` (no alpha) or ``(H, W, 4)`` straight RGBA in ``[0, 1]``.
 
@@ -194,7 +235,11 @@ def read_rgba(path: Path, field: str, file: Path | None = None) -> np.ndarray:
         InputError: missing, unreadable or corrupt file, unsupported sample type or channel count, NaN/inf.
     """
     file = path if file is None else file
-    if not path.is_file():
+    try:
+        found = path.is_file()
+    except OSError as exc:   # a name too long, a folder that cannot be searched
+        raise InputError(f"cannot read image {path} ({exc.strerror or exc})", file=file, field=field) from None
+    if not found:
         raise InputError(f"image not found: {path}", file=file, field=field)
     try:
         if _png_bit_depth(path) == 16:
@@ -205,9 +250,16 @@ def read_rgba(path: Path, field: str, file: Path | None = None) -> np.ndarray:
             if img.ndim == 3 and img.shape[2] in (3, 4):
                 img = img[..., [2, 1, 0, 3][: img.shape[2]]]  # BGR(A) -> RGB(A)
         elif path.suffix.lower() in _PILLOW_SUFFIXES:
-            img = iio.imread(path, plugin="pillow")
+            img = _read_pillow(path)
         else:
             img = iio.imread(path)
+    except InputError as exc:   # a mode we do not read, said by _read_pillow
+        raise InputError(str(exc), file=file, field=field) from None
+    except OSError as exc:
+        if exc.errno is not None:   # the file itself: permissions, a name too long, ...
+            raise InputError(f"cannot read image {path} ({exc.strerror or exc})", file=file, field=field) from None
+        msg = f"cannot decode image {path} ({type(exc).__name__}: {exc})".splitlines()[0]
+        raise InputError(msg, file=file, field=field) from None
     except Exception as exc:  # corrupt file: the decoders raise many different types
         msg = f"cannot decode image {path} ({type(exc).__name__}: {exc})".splitlines()[0]
         raise InputError(msg, file=file, field=field) from None
@@ -224,6 +276,9 @@ def read_rgba(path: Path, field: str, file: Path | None = None) -> np.ndarray:
         out *= np.float32(scale)
     elif not np.all(np.isfinite(out)):
         raise InputError(f"image {path} contains NaN or inf", file=file, field=field)
+    elif out.size and (out.min() < 0.0 or out.max() > 1.0):   # float samples are taken as they are: in [0, 1]
+        raise InputError(f"image {path} holds float samples in [{out.min():g}, {out.max():g}]; expected [0, 1]",
+                         file=file, field=field)
     c = out.shape[2]
     if c == 1:
         out = np.repeat(out, 3, axis=2)
@@ -308,20 +363,21 @@ def load_images(paths, fields, file_of, downscale: float = 1.0, size: tuple[int,
     size0 = out_size = None
     for k, (path, field, file) in enumerate(zip(paths, fields, file_of)):
         img = read_rgba(path, field, file)
-        if size0 is None:
-            size0 = img.shape[:2]
-            out_size = tuple(size) if size is not None else target_size(size0[0], size0[1], downscale)
-            rgb_all = np.empty((n,) + out_size + (3,), np.float32)
-            alpha_all = np.ones((n,) + out_size, np.float32)
-        elif img.shape[:2] != size0:
+        if size0 is not None and img.shape[:2] != size0:
             raise InputError(
                 f"image {path} is {img.shape[1]}x{img.shape[0]} but {paths[0]} is {size0[1]}x{size0[0]} "
                 "(all images of a scene must share one size)",
                 file=file,
                 field=field,
             )
-        if prepare is not None:
+        decoded = img.shape[:2]
+        if prepare is not None:   # checks the photo against its camera's size before anything is allocated
             img = prepare(k, img)
+        if size0 is None:
+            size0 = decoded
+            out_size = tuple(size) if size is not None else target_size(size0[0], size0[1], downscale)
+            rgb_all = np.empty((n,) + out_size + (3,), np.float32)
+            alpha_all = np.ones((n,) + out_size, np.float32)
         img = resize_area(img, out_size)
         rgb_all[k] = img[..., :3]
         if img.shape[2] == 4:

@@ -60,8 +60,15 @@ INFONERF4_VIEWS = (26, 86, 2, 55)
 PROTOCOLS = ("extreme", "infonerf4", "random8", "spread", "llff", "views", "all")
 
 
-def _as_view_list(views, n: int, what: str) -> np.ndarray:
-    """Validate ``views`` (ints, distinct, in ``[0, n)``) -> int64 array; ``InputError`` on ``--views``."""
+def _as_view_list(views, n: int, what: str, table: str | None = None) -> np.ndarray:
+    """Validate ``views`` (ints, distinct, in ``[0, n)``) -> int64 array; ``InputError`` on ``--views``, or on
+    ``--protocol`` when the views are the protocol's own (``table`` names them), not the user's."""
+    if table is not None:
+        bad = [int(v) for v in views if not 0 <= int(v) < n]
+        if bad:
+            raise InputError(f"{table} {tuple(int(v) for v in views)} index the train split, which has {n} "
+                             f"images (view {bad[0]} is past its end); choose views with --views",
+                             field="--protocol")
     if isinstance(views, (str, bytes)) or not hasattr(views, "__iter__"):
         raise InputError(f"expected a list of view indices, got {views!r}", field="--views")
     out = []
@@ -79,8 +86,12 @@ def _as_view_list(views, n: int, what: str) -> np.ndarray:
     return np.asarray(out, np.int64)
 
 
-def _n_views(n_views, default: int, n_max: int, what: str) -> int:
+def _n_views(n_views, default: int, n_max: int, what: str, protocol: str = "") -> int:
     if n_views is None:
+        if not 1 <= default <= n_max:   # the protocol's own count: --n-views was not given
+            raise InputError(f"protocol {protocol!r} takes {default} views, and the scene has {n_max} {what}; "
+                             f"choose fewer with --n-views" if n_max else
+                             f"protocol {protocol!r} needs {what}, and the scene has none", field="--protocol")
         n_views = default
     if isinstance(n_views, (bool, np.bool_)) or not isinstance(n_views, numbers.Integral):
         raise InputError(f"expected an integer, got {n_views!r}", field="--n-views")
@@ -145,20 +156,23 @@ def fewshot_split(scene: Scene, protocol: str = "extreme", views=None, n_views=N
                     "pass views explicitly",
                     field="--views",
                 )
-            views = EXTREME_VIEWS[key]
+            train = train_split[_as_view_list(EXTREME_VIEWS[key], n_train, "indices into the train split",
+                                              table=f"the extreme protocol's views for {scene.name!r}")]
+            return train, _test_split(scene, protocol)
         train = train_split[_as_view_list(views, n_train, "indices into the train split")]
         return train, _test_split(scene, protocol)
     if protocol == "infonerf4":
-        train = train_split[_as_view_list(INFONERF4_VIEWS, n_train, "indices into the train split")]
+        train = train_split[_as_view_list(INFONERF4_VIEWS, n_train, "indices into the train split",
+                                          table="the infonerf4 protocol's views")]
         return train, _test_split(scene, protocol)
     if protocol == "random8":
-        k = _n_views(n_views, 8, n_train, "train-split views")
+        k = _n_views(n_views, 8, n_train, "train-split views", protocol)
         rng = np.random.default_rng(seed)
         pick = rng.choice(n_train, size=k, replace=False)
         return train_split[np.asarray(pick, np.int64)], _test_split(scene, protocol)
     if protocol == "spread":
         test = _test_split(scene, protocol)
-        k = _n_views(n_views, 3, n_train, "train-split views")
+        k = _n_views(n_views, 3, n_train, "train-split views", protocol)
         return train_split[_evenly(n_train, k)], test
     if protocol == "all":
         if n_train == 0:
@@ -172,7 +186,7 @@ def fewshot_split(scene: Scene, protocol: str = "extreme", views=None, n_views=N
         rest = idx[idx % LLFF_HOLDOUT != 0]
         if rest.size == 0:
             raise InputError(f"scene {scene.name!r} has too few images ({n}) for the LLFF hold-out", field="--protocol")
-        k = _n_views(n_views, 3, int(rest.size), "non-held-out images")
+        k = _n_views(n_views, 3, int(rest.size), "non-held-out images", protocol)
         return rest[_evenly(int(rest.size), k)], test
 
     # protocol == "views"

@@ -40,10 +40,16 @@ from ..geometry import Intrinsics, invert_rigid
 from . import _io
 from .scene import Scene
 
-__all__ = ["load_llff", "llff_image_folder", "recenter_poses", "normalise_forward_facing", "LLFF_HOLDOUT"]
+__all__ = ["load_llff", "llff_image_folder", "recenter_poses", "normalise_forward_facing", "LLFF_HOLDOUT",
+           "MAX_DEPTH_RANGE"]
 
 #: Every ``LLFF_HOLDOUT``-th image (index % 8 == 0) is a test view in the LLFF protocol.
 LLFF_HOLDOUT = 8
+
+
+#: The largest far / near ratio over a forward-facing scene's bounds (fern's: 4.7); beyond it the NDC near
+#: plane sits so close that the rays' NDC depths lose their precision (near bounds of 1e-300 trained to NaN).
+MAX_DEPTH_RANGE = 1e6
 
 
 def _read_poses_bounds(file: Path) -> np.ndarray:
@@ -191,8 +197,25 @@ def load_llff(root: Path, downscale: float = 1.0, bd_factor: float | None = 0.75
     for i in range(n):
         if not 0 < bounds[i, 0] <= bounds[i, 1]:
             raise InputError(f"expected 0 < near <= far, got {bounds[i].tolist()}", file=file, field=f"row {i} bounds")
+    depth_range = bounds[:, 1].max() / bounds[:, 0].min()
+    if not depth_range <= MAX_DEPTH_RANGE:   # NDC and its near plane are built from the smallest near bound
+        i = int(np.argmin(bounds[:, 0]))
+        raise InputError(f"near bound {bounds[i, 0]:g} is {depth_range:.3g} times smaller than the largest far "
+                         f"bound; forward-facing scenes are fitted with far / near up to {MAX_DEPTH_RANGE:g}",
+                         file=file, field=f"row {i} bounds")
     c2w = _opencv_poses(arr, file)
-    c2w, bounds = normalise_forward_facing(c2w, bounds, bd_factor, recenter)
+    with np.errstate(over="ignore", invalid="ignore"):
+        c2w, bounds = normalise_forward_facing(c2w, bounds, bd_factor, recenter)
+    if not (np.isfinite(c2w).all() and np.isfinite(bounds).all()):
+        i = int(np.flatnonzero(~np.isfinite(c2w).all(axis=(1, 2)) | ~np.isfinite(bounds).all(axis=1))[0])
+        raise InputError("the camera positions overflow when the scene is normalised (LLFF's scaling and "
+                         "recentring); are the poses in a sane unit?", file=file, field=f"row {i}")
+    offset = np.abs(c2w[:, :3, 3]).max(axis=1)   # from the mean camera, after normalising
+    if not offset.max() <= MAX_DEPTH_RANGE * bounds.max():   # one NDC frustum cannot hold such a spread
+        i = int(np.argmax(offset))
+        raise InputError(f"the camera sits {offset[i]:.3g} from the cameras' mean, {offset[i] / bounds.max():.3g} "
+                         f"times the scene's far bound (a forward-facing capture's cameras stand close together); "
+                         f"are the poses in a sane unit?", file=file, field=f"row {i}")
 
     folder = llff_image_folder(root, downscale)
     paths = _list_images(folder)

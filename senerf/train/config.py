@@ -413,9 +413,13 @@ def choose_model(scene, train_idx, overrides: Mapping[str, Any] | None = None,
         # 3 decimals at unit scale; more for small scenes (a 1e-4-scale scene would round to an empty box)
         half0 = float(box[1, 0] - box[0, 0]) / 2
         box = np.round(box, max(3, 3 - math.floor(math.log10(half0))) if half0 > 0 else 3)
+        half = (box[1, 0] - box[0, 0]) / 2
+        if not (half > 0 and math.isfinite(half)):   # a field of view so narrow that the box has no width
+            raise InputError(f"the cameras see a box of half size {half:g} (field of view {min(fov_x, fov_y):.3g} "
+                             f"degrees at distance {dist:.3g}); check the focal length", file=scene.root,
+                             field="camera intrinsics")
         chosen.update(ndc=False, aabb=tuple(map(tuple, box)), near=None, far=None,
                       occupancy_resolution=64)
-        half = (box[1, 0] - box[0, 0]) / 2
         why["aabb"] = (f"cube centre ({centre[0]:.4g}, {centre[1]:.4g}, {centre[2]:.4g}) half size {half:.4g} "
                        f"(camera distance {dist:.4g} x tan(fov/2) x 1.05)")
         why["near"] = "per-ray near/far from the ray-box intersection"

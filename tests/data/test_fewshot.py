@@ -168,3 +168,25 @@ def test_llff_protocol_properties(n, frac):
     if k >= 2:
         rest = [i for i in range(n) if i % 8]
         assert train[0] == rest[0] and train[-1] == rest[-1]
+
+
+def test_a_protocols_own_views_or_count_past_the_train_split_name_the_protocol():
+    # with no flag given, lego's Extreme views on a 6-image train split blamed --views, and random8's
+    # default count blamed --n-views (so at 2e4108c)
+    scene = blender_like(n_train=6, n_val=1, n_test=2)
+    with pytest.raises(InputError, match=r"the extreme protocol's views for 'lego' \(0, 1, 51\) index the train "
+                                         r"split, which has 6 images \(view 51 is past its end\)") as info:
+        fewshot_split(scene, "extreme")
+    assert info.value.field == "--protocol"
+    with pytest.raises(InputError, match="the infonerf4 protocol's views") as info:
+        fewshot_split(scene, "infonerf4")
+    assert info.value.field == "--protocol"
+    with pytest.raises(InputError, match="protocol 'random8' takes 8 views, and the scene has 6") as info:
+        fewshot_split(scene, "random8")
+    assert info.value.field == "--protocol"
+    with pytest.raises(InputError) as info:   # the user's own values still name the user's flags
+        fewshot_split(scene, "extreme", views=[0, 7])
+    assert info.value.field == "--views"
+    with pytest.raises(InputError) as info:
+        fewshot_split(scene, "random8", n_views=7)
+    assert info.value.field == "--n-views"

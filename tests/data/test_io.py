@@ -123,3 +123,81 @@ def test_as_pose_accepts_3x4_and_real_float32_noise(tmp_path):
     out = _io.as_pose(m.tolist(), tmp_path, "m")
     np.testing.assert_array_equal(out[3], (0, 0, 0, 1))
     np.testing.assert_array_equal(out[:3], m)
+
+
+def test_cmyk_and_transparent_palette_images_are_read_as_rgb_and_rgba(tmp_path):
+    # a CMYK JPEG's four channels passed for RGBA (K as alpha, colours inverted) and a palette PNG lost its
+    # transparency (so at 2e4108c); expected values from Pillow's own conversions of the same files
+    from PIL import Image
+
+    rgba = np.random.default_rng(3).integers(0, 256, (6, 8, 4), dtype=np.uint8)
+    rgba[..., 3] = np.where(np.arange(8) < 4, 0, 255)[None, :]
+    Image.fromarray(rgba[..., :3]).convert("CMYK").save(tmp_path / "c.jpg", quality=95)
+    rgb, alpha = _io.read_image(tmp_path / "c.jpg", "f")
+    with Image.open(tmp_path / "c.jpg") as im:
+        assert im.mode == "CMYK"
+        expected = np.asarray(im.convert("RGB")) / 255.0
+    assert alpha is None and np.allclose(rgb, expected, atol=1e-6)
+    assert np.abs(rgb - rgba[..., :3] / 255.0).mean() < 0.1   # close to the colours saved, not their inverse
+    # palette entry 0 transparent (left half), entries 1-3 opaque red, green, blue (right half)
+    index = np.where(np.arange(8) < 4, 0, 1 + np.arange(8) % 3)[None].repeat(6, axis=0).astype(np.uint8)
+    pal = Image.fromarray(index, "P")
+    pal.putpalette([9, 9, 9, 255, 0, 0, 0, 255, 0, 0, 0, 255] + [0] * (256 * 3 - 12))
+    pal.save(tmp_path / "p.png", transparency=0)
+    with Image.open(tmp_path / "p.png") as im:
+        assert im.mode == "P" and "transparency" in im.info
+    rgb, alpha = _io.read_image(tmp_path / "p.png", "f")
+    assert alpha is not None and alpha[:, :4].max() == 0.0 and alpha[:, 4:].min() == 1.0
+    colours = np.eye(3)[np.arange(8)[4:] % 3]   # index 1 + k % 3 -> red, green, blue
+    assert np.array_equal(rgb[:, 4:], np.broadcast_to(colours, (6, 4, 3)))
+
+
+def test_float_images_outside_the_unit_range_and_unread_modes_are_refused(tmp_path):
+    from PIL import Image
+
+    Image.fromarray(np.full((4, 4), 200.0, np.float32), "F").save(tmp_path / "f.tif")
+    with pytest.raises(InputError, match=r"holds float samples in \[200, 200\]; expected \[0, 1\]") as info:
+        _io.read_image(tmp_path / "f.tif", "frames[1].file_path", tmp_path / "t.json")
+    assert info.value.field == "frames[1].file_path"
+    Image.fromarray(np.full((4, 4), 0.5, np.float32), "F").save(tmp_path / "h.tif")
+    assert np.allclose(_io.read_image(tmp_path / "h.tif", "f")[0], 0.5)   # in range: read as it is
+    Image.new("I", (4, 4), 7).save(tmp_path / "i.tif")
+    with pytest.raises(InputError, match="Pillow mode 'I', which senerf does not read"):
+        _io.read_image(tmp_path / "i.tif", "f")
+
+
+def test_a_path_naming_the_scene_folder_itself_is_refused(tmp_path):
+    # "." and "train/.." normalise to the folder; a loader adding ".png" then read the sibling <folder>.png
+    for rel in (".", "train/..", "./"):
+        with pytest.raises(InputError, match="names the folder itself"):
+            _io.resolve_inside(tmp_path, rel, tmp_path / "t.json", "frames[1].file_path")
+
+
+def test_unreadable_names_and_json_beyond_the_parsers_limits_are_one_line_errors(tmp_path):
+    with pytest.raises(InputError, match="cannot read image .*File name too long") as info:
+        _io.read_image(tmp_path / ("a" * 300 + ".png"), "frames[0].file_path", tmp_path / "t.json")
+    assert info.value.field == "frames[0].file_path"
+    (tmp_path / "deep.json").write_text('{"frames": ' + "[" * 200000 + "]" * 200000 + "}")
+    with pytest.raises(InputError, match="nested too deeply"):
+        _io.read_json(tmp_path / "deep.json")
+    (tmp_path / "big.json").write_text('{"camera_angle_x": ' + "9" * 5000 + "}")
+    with pytest.raises(InputError, match="malformed JSON .*digits"):
+        _io.read_json(tmp_path / "big.json")
+    (tmp_path / "folder.json").mkdir()
+    with pytest.raises(InputError, match="is not a file"):
+        _io.read_json(tmp_path / "folder.json")
+
+
+def test_a_photo_is_checked_against_its_camera_before_the_arrays_are_allocated(tmp_path, monkeypatch):
+    # a camera declaring a huge size made load_images allocate (n, H, W, 3) before the check (so at 2e4108c)
+    iio.imwrite(tmp_path / "a.png", np.zeros((4, 4, 3), np.uint8))
+
+    def prepare(k, img):
+        raise InputError("image is 4x4 but its camera is 4611686018427387904x4", file=tmp_path, field="image 1")
+
+    allocated = []
+    real_empty = np.empty
+    monkeypatch.setattr(_io.np, "empty", lambda *a, **kw: allocated.append(a) or real_empty(*a, **kw))
+    with pytest.raises(InputError, match="but its camera is"):
+        _io.load_images([tmp_path / "a.png"], ["image 1"], [tmp_path], size=(2 ** 62, 4), prepare=prepare)
+    assert allocated == []

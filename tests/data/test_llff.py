@@ -121,3 +121,26 @@ def test_fern_downscale_1_without_images_folder_is_refused(fern_dir):
 
     with pytest.raises(InputError, match="images_8"):
         load_scene(fern_dir)
+
+
+def test_bounds_spanning_too_many_decades_and_overflowing_poses_are_refused(tmp_path, writers):
+    # near bounds of 1e-300, or a camera at 1e308, loaded and then trained to a NaN loss (so at 2e4108c)
+    from senerf.data.llff import MAX_DEPTH_RANGE
+    from senerf.errors import InputError
+
+    rows = writers.llff_rows()
+    rows[3, 15] = 1e-300
+    with pytest.raises(InputError, match="near bound 1e-300 is .* times smaller than the largest far bound") as info:
+        load_llff(writers.llff(tmp_path / "near", rows), downscale=2)
+    assert info.value.field == "row 3 bounds"
+    rows = writers.llff_rows(near=1.0, far=0.99 * MAX_DEPTH_RANGE)   # within the limit: loads
+    assert load_llff(writers.llff(tmp_path / "ok", rows), downscale=2).far > 0
+    rows = writers.llff_rows()
+    rows[2, 3] = 1e308   # row 2's x translation (column 3 of the first matrix row)
+    with pytest.raises(InputError, match="times the scene's far bound") as info:
+        load_llff(writers.llff(tmp_path / "far", rows), downscale=2)
+    assert info.value.field == "row 2"
+    rows = writers.llff_rows(near=0.5, far=1.0)   # positions scaled by 1 / (0.75 near) = 8 / 3: 1e308 overflows
+    rows[2, 3] = 1e308
+    with pytest.raises(InputError, match="overflow when the scene is normalised"):
+        load_llff(writers.llff(tmp_path / "inf", rows), downscale=2)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from pathlib import Path
 
@@ -223,3 +224,14 @@ def test_choose_model_refuses_k_planes_settings_for_the_nerf_field(key):
     with pytest.raises(InputError, match=f"{key} sets the K-Planes field; the NeRF field has no such setting"):
         choose_model(_scene(), np.arange(6), {"field": "nerf", key: 16}, echo=lambda s: None)
     assert getattr(choose_model(_scene(), np.arange(6), {key: 16}, echo=lambda s: None), key) == 16   # K-Planes
+
+
+def test_a_field_of_view_too_narrow_for_a_box_is_refused_naming_the_intrinsics():
+    # camera_angle_x 1e-300 (or fl_x 1e308) rounded the box to zero width and math.log(0) raised a
+    # "math domain error" traceback (so at 2e4108c)
+    scene = _scene()
+    tiny = Intrinsics(1e302, 1e302, 10.0, 10.0, 20, 20)
+    narrow = dataclasses.replace(scene, intrinsics=tiny, intrinsics_all=(tiny,) * scene.n_images)
+    with pytest.raises(InputError, match="the cameras see a box of half size 0 .*check the focal length") as info:
+        choose_model(narrow, np.arange(6))
+    assert info.value.field == "camera intrinsics"
