@@ -180,6 +180,39 @@ def _model_overrides(args) -> dict:
     return out
 
 
+#: How far a test camera may stand from the box the field is fitted in, in box half sizes: beyond it the object
+#: is far below a pixel, and float32 rays (relative to the box) lose it altogether (a camera at 1e300 scored NaN).
+MAX_CAMERA_BOXES = 1e6
+
+
+def _check_test_views(scene, train_idx, test_idx, model, scene_dir: Path) -> None:
+    """Refuse test cameras that cannot see the fitted box (too far from it); warn about test views that are
+    training views (their scores would measure a view the field was trained on)."""
+    import numpy as np
+
+    from senerf.data import view_names
+
+    if not model.ndc:
+        box = np.asarray(model.aabb, dtype=np.float64)
+        centre, half = box.mean(axis=0), float((box[1] - box[0]).max()) / 2
+        with np.errstate(over="ignore", invalid="ignore"):   # the largest offset along an axis: no squares
+            dist = np.abs(scene.c2w[test_idx, :3, 3] - centre).max(axis=-1)
+        far = ~(dist <= MAX_CAMERA_BOXES * half)
+        if far.any():
+            i = int(np.asarray(test_idx)[np.flatnonzero(far)[0]])
+            raise InputError(f"test view {i} ({view_names(scene, [i])[0]}) stands {float(dist[far][0]):.3g} from the "
+                             f"centre of the box the field is fitted in, more than {MAX_CAMERA_BOXES:g} times its half "
+                             f"size {half:.3g}; are its pose and unit right?", file=scene_dir, field="test views")
+    train_c2w = scene.c2w[train_idx]
+    for i in np.asarray(test_idx):
+        same = np.flatnonzero(np.abs(train_c2w - scene.c2w[i]).max(axis=(1, 2)) <= 1e-9)
+        if same.size:
+            j = int(np.asarray(train_idx)[same[0]])
+            print(f"{PROG}: warning: test view {int(i)} ({view_names(scene, [i])[0]}) has the pose of training view "
+                  f"{j} ({view_names(scene, [j])[0]}); its scores measure a view the field is trained on",
+                  file=sys.stderr)
+
+
 def _check_model_fits(model, device: str = "cpu") -> None:
     """:class:`InputError` when the field's feature planes would not fit, refused before anything is written.
 
@@ -452,6 +485,7 @@ def _run(args, argv) -> int:
                          field="--aabb")
     model = choose_model(scene, train_idx, {**PRESETS[args.preset]["model"], **_model_overrides(args)})
     _check_model_fits(model, device)
+    _check_test_views(scene, train_idx, test_idx, model, scene_dir)
     if fmt == "colmap" and scene.kind == "object":
         _warn_points_outside(scene_dir, model)
     overrides = {k: v for k, v in (("steps", args.steps), ("batch_rays", args.batch_rays)) if v is not None}

@@ -703,3 +703,37 @@ def test_a_photo_the_run_read_and_no_longer_reads_is_named(tiny_scene, tmp_path,
     assert main(argv) == 2
     assert ("holds a different run (scene files differ: train/copy.png is read now, not then and 2 more)"
             in _one_error_line(capsys))
+
+
+def test_a_test_camera_far_beyond_the_box_is_refused_and_a_test_view_posed_as_a_training_view_is_warned(
+        tmp_path, tiny_scene, capsys):
+    # a test camera at 1e300 scored NaN after two numpy cast warnings, and a test frame with a training frame's
+    # pose scored a training view, without a word (so at 5e35cd6)
+    import shutil
+
+    def edited(name, edit):
+        root = tmp_path / name
+        shutil.copytree(tiny_scene, root)
+        doc = json.loads((root / "transforms_test.json").read_text())
+        edit(doc, json.loads((root / "transforms_train.json").read_text()))
+        (root / "transforms_test.json").write_text(json.dumps(doc))
+        return root
+
+    def far(doc, train):
+        doc["frames"][1]["transform_matrix"][0][3] = 1e300
+
+    out = tmp_path / "far_out"
+    assert main([str(edited("far", far)), "--out", str(out), *TINY]) == 2
+    line = _one_error_line(capsys)
+    assert "test views: test view 6 (test/r_1.png) stands 1e+300 from the centre of the box" in line
+    assert not out.exists()
+
+    def posed_as_train(doc, train):
+        doc["frames"][0]["transform_matrix"] = train["frames"][2]["transform_matrix"]
+
+    assert main([str(edited("same", posed_as_train)), "--out", str(tmp_path / "same_out"), *TINY]) == 0
+    err = capsys.readouterr().err
+    assert ("senerf-fit: warning: test view 5 (test/r_0.png) has the pose of training view 2 (train/r_2.png); its "
+            "scores measure a view the field is trained on") in err
+    assert main([str(tiny_scene), "--out", str(tmp_path / "plain"), *TINY]) == 0
+    assert "has the pose of training view" not in capsys.readouterr().err
