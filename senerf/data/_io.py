@@ -168,6 +168,8 @@ def resolve_inside(root: Path, rel: str, file: Path, field: str) -> Path:
     """
     if not isinstance(rel, str) or not rel.strip():
         raise InputError(f"expected a non-empty path string, got {rel!r}", file=file, field=field)
+    if "\x00" in rel:   # no file system takes it (and a raw NUL would reach the terminal)
+        raise InputError(f"path {rel!r} contains a NUL character", file=file, field=field)
     if os.path.isabs(rel) or rel.startswith(("/", "\\")) or (len(rel) > 1 and rel[1] == ":"):
         raise InputError(f"absolute path {rel!r} refused; paths must be relative to the scene folder",
                          file=file, field=field)

@@ -294,6 +294,14 @@ def load_ngp(root: Path, downscale: float = 1.0) -> Scene:
             split_idx["train"].append(k)
     if not entries:
         raise InputError("no frame has an existing image", file=file, field="frames")
+    for split, names in split_lists.items():   # a list that selects nothing is a mistake, not "no split"
+        if split_idx[split]:
+            continue
+        if names:
+            raise InputError(f"none of its {len(names)} names is the file_path of a frame with an existing image "
+                             f"(e.g. {sorted(names)[0]!r})", file=file, field=f"{split}_filenames")
+        if split == "train":
+            raise InputError("is empty: no frame to train on", file=file, field="train_filenames")
     if missing:
         warnings.warn(f"{file}: skipped {len(missing)} frame(s) whose image is missing: {', '.join(missing)}",
                       stacklevel=2)

@@ -116,6 +116,25 @@ def test_ngp_nerfstudio_split_lists(tmp_path, writers):
     assert scene.splits["test"].tolist() == [1]
 
 
+@pytest.mark.parametrize("extra, field, message", [
+    ({"train_filenames": []}, "train_filenames", "is empty: no frame to train on"),
+    ({"train_filenames": ["images/f_0.png"], "test_filenames": ["f_1.png"]}, "test_filenames",
+     "none of its 1 names is the file_path of a frame"),
+    ({"train_filenames": ["img/f_0.png", "img/f_2.png"]}, "train_filenames", "none of its 2 names"),
+])
+def test_ngp_split_lists_that_select_no_frame_are_refused(tmp_path, writers, extra, field, message):
+    # an empty train list said "--n-views: must be in [1, 0]", and lists matching no frame were ignored,
+    # the scene falling back to another protocol without a word (so at 413b15a)
+    from senerf.errors import InputError
+
+    root = writers.ngp(tmp_path / "n", meta_extra=extra)
+    with pytest.raises(InputError, match=message) as info:
+        load_scene(root)
+    assert info.value.field == field and info.value.file.endswith("transforms.json")
+    ok = writers.ngp(tmp_path / "ok", meta_extra={"train_filenames": ["images/f_0.png"], "val_filenames": []})
+    assert load_scene(ok).splits["val"].size == 0   # an empty val list is no val split, as before
+
+
 # --- the real lego scene ---------------------------------------------------------------------------------
 
 def test_lego_split_sizes_counted_in_json(lego_dir, lego4):

@@ -171,6 +171,9 @@ def test_a_path_naming_the_scene_folder_itself_is_refused(tmp_path):
     for rel in (".", "train/..", "./"):
         with pytest.raises(InputError, match="names the folder itself"):
             _io.resolve_inside(tmp_path, rel, tmp_path / "t.json", "frames[1].file_path")
+    with pytest.raises(InputError, match=r"path 'a\\x00b.png' contains a NUL character") as info:
+        _io.resolve_inside(tmp_path, "a\x00b.png", tmp_path / "t.json", "frames[1].file_path")
+    assert "\x00" not in str(info.value)
 
 
 def test_unreadable_names_and_json_beyond_the_parsers_limits_are_one_line_errors(tmp_path):
