@@ -210,6 +210,17 @@ def load_llff(root: Path, downscale: float = 1.0, bd_factor: float | None = 0.75
         i = int(np.flatnonzero(~np.isfinite(c2w).all(axis=(1, 2)) | ~np.isfinite(bounds).all(axis=1))[0])
         raise InputError("the camera positions overflow when the scene is normalised (LLFF's scaling and "
                          "recentring); are the poses in a sane unit?", file=file, field=f"row {i}")
+    from .colmap import view_spread   # here: colmap imports this module
+
+    full_k = [Intrinsics(f, f, 0.5 * hwf[0, 1], 0.5 * hwf[0, 0], int(round(hwf[0, 1])), int(round(hwf[0, 0])))
+              for f in hwf[:, 2]]
+    _, ray_deg, _ = view_spread(c2w, full_k)
+    if not ray_deg < 90.0:   # NDC holds the half-space in front of the mean camera only (as COLMAP's check)
+        axes = c2w[:, :3, 2] @ (c2w[:, :3, 2].sum(axis=0) / max(np.linalg.norm(c2w[:, :3, 2].sum(axis=0)), 1e-12))
+        i = int(np.argmin(axes))
+        raise InputError(f"some rays look {ray_deg:.0f} degrees away from the cameras' mean direction; a "
+                         f"forward-facing (NDC) fit needs every ray within 90 (row {i}'s camera turns furthest)",
+                         file=file, field=f"row {i}")
     offset = np.abs(c2w[:, :3, 3]).max(axis=1)   # from the mean camera, after normalising
     if not offset.max() <= MAX_DEPTH_RANGE * bounds.max():   # one NDC frustum cannot hold such a spread
         i = int(np.argmax(offset))

@@ -144,3 +144,18 @@ def test_bounds_spanning_too_many_decades_and_overflowing_poses_are_refused(tmp_
     rows[2, 3] = 1e308
     with pytest.raises(InputError, match="overflow when the scene is normalised"):
         load_llff(writers.llff(tmp_path / "inf", rows), downscale=2)
+
+
+def test_cameras_looking_away_from_the_others_are_refused(tmp_path, writers):
+    # odd rows turned 180 degrees (facing back) loaded and trained to 4.8 dB (so at 05e263a); COLMAP's
+    # forward-facing check already refused rays beyond 90 degrees from the mean direction
+    from senerf.errors import InputError
+
+    rows = writers.llff_rows()
+    m = rows[3, :15].reshape(3, 5)
+    m[:, 1] = (-1.0, 0.0, 0.0)   # right: -x
+    m[:, 2] = (0.0, 0.0, 1.0)    # back: +z, so the camera looks along -z, away from the others
+    rows[3, :15] = m.reshape(-1)
+    with pytest.raises(InputError, match="some rays look .* degrees away from the cameras' mean direction") as info:
+        load_llff(writers.llff(tmp_path / "back", rows), downscale=2)
+    assert info.value.field == "row 3"
