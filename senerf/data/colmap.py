@@ -31,6 +31,7 @@ Convention:
 from __future__ import annotations
 
 import math
+import os
 import struct
 from dataclasses import dataclass
 from pathlib import Path
@@ -417,7 +418,9 @@ def load_colmap(root: Path, downscale: float = 1.0, bd_factor: float | None = 0.
     images = sorted(read_images(img_file), key=lambda im: im.name)
     if not images:
         raise InputError("no registered image", file=img_file)
-    for key, what in ((lambda im: im.image_id, "id"), (lambda im: im.name, "name")):
+    # names compared as paths: "./a.png" and "a.png" are one photo
+    for key, what in ((lambda im: im.image_id, "id"),
+                      (lambda im: os.path.normpath(im.name.replace("\\", "/")), "name")):
         values = [key(im) for im in images]
         twice = sorted({v for v in values if values.count(v) > 1}, key=str)
         if twice:
