@@ -509,3 +509,12 @@ def test_sparse_points_are_the_model_s_points_in_colmap_s_frame(tmp_path):
     assert sparse_points(root) is None
     with pytest.raises(InputError, match="no COLMAP model"):
         sparse_points(tmp_path)
+
+
+def test_a_forward_facing_view_without_points_names_the_points_file_and_the_image(tmp_path):
+    # the message named the model folder, without a field (so at fa04dda)
+    root, _ = ring_scene(tmp_path / "ff", True, [0, 5, 10])
+    (root / "sparse" / "0" / "points3D.bin").write_bytes(struct.pack("<Q", 0))   # a model without points
+    message = _error(root)
+    assert message.startswith(f"{root / 'sparse' / '0' / 'points3D.bin'}: image ")
+    assert "sees no 3D point in front of it" in message
