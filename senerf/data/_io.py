@@ -245,7 +245,12 @@ def read_rgba(path: Path, field: str, file: Path | None = None) -> np.ndarray:
         raise InputError(f"image not found: {path}", file=file, field=field)
     try:
         if _png_bit_depth(path) == 16:
-            # Pillow (behind imageio) truncates 16-bit colour PNGs to 8 bits; OpenCV keeps all 16.
+            # Pillow (behind imageio) truncates 16-bit colour PNGs to 8 bits; OpenCV keeps all 16.  Pillow checks
+            # the chunks first: libpng, inside OpenCV, prints its own line on a corrupt file before failing
+            from PIL import Image
+
+            with Image.open(path) as im:
+                im.verify()
             img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
             if img is None:
                 raise ValueError("OpenCV could not decode it")

@@ -204,3 +204,21 @@ def test_a_photo_is_checked_against_its_camera_before_the_arrays_are_allocated(t
     with pytest.raises(InputError, match="but its camera is"):
         _io.load_images([tmp_path / "a.png"], ["image 1"], [tmp_path], size=(2 ** 62, 4), prepare=prepare)
     assert allocated == []
+
+
+@pytest.mark.parametrize("damage", ["flip", "cut"])
+def test_a_corrupt_16bit_png_is_one_error_and_nothing_else_on_stderr(tmp_path, capfd, damage):
+    # OpenCV's libpng printed "libpng error: IDAT: CRC error" / "Read Error" beside our one line (so at c5dcf82)
+    path = tmp_path / "d.png"
+    cv2.imwrite(str(path), np.random.default_rng(0).integers(0, 65535, (16, 16, 3), dtype=np.uint16))
+    data = bytearray(path.read_bytes())
+    at = data.index(b"IDAT") + 20
+    if damage == "flip":
+        data[at] ^= 0xFF
+    else:
+        del data[at:]
+    path.write_bytes(bytes(data))
+    capfd.readouterr()
+    with pytest.raises(InputError, match="cannot decode image"):
+        _io.read_image(path, "frames[0].file_path")
+    assert capfd.readouterr().err == ""
