@@ -118,16 +118,29 @@ def _split(n: int, parts: int) -> list[tuple[int, int]]:
     return [(s, min(n, s + step)) for s in range(0, n, step)]
 
 
-def _run(calls):
+def _run(calls, keep: tuple) -> None:
+    """Run ``calls[1:]`` on worker threads and ``calls[0]`` here; return when all are done.
+
+    The calls write through raw pointers into tensors; ``keep`` (those tensors) is held by every worker until
+    its call returns.  An interrupt (Ctrl-C, or SIGTERM, which senerf's commands raise as KeyboardInterrupt)
+    can leave this function while a worker still runs, and the caller then drops its tensors: without
+    ``keep`` their memory was freed under the worker, and senerf-fit died of a segmentation fault instead of
+    exiting 130.
+    """
     if len(calls) == 1:
         calls[0]()
         return
-    threads = [threading.Thread(target=c) for c in calls[1:]]
+    threads = [threading.Thread(target=_work, args=(call, keep)) for call in calls[1:]]
     for t in threads:
         t.start()
     calls[0]()
     for t in threads:
         t.join()
+
+
+def _work(call, keep: tuple) -> None:
+    """A worker's body: ``keep`` is referenced (by the thread's arguments) until ``call`` returns."""
+    call()
 
 
 class _Fused(torch.autograd.Function):
@@ -139,7 +152,7 @@ class _Fused(torch.autograd.Function):
         args = (u.data_ptr(), table.data_ptr())
         tail = (s, res.data_ptr(), offs.data_ptr(), out.data_ptr())
         _run([functools.partial(lib.kp_forward, *args, a, b, *tail)
-              for a, b in _split(n, torch.get_num_threads())])
+              for a, b in _split(n, torch.get_num_threads())], keep=(u, table, res, offs, out))
         ctx.save_for_backward(table, u, res, offs)
         ctx.lib = lib
         return out
@@ -153,7 +166,7 @@ class _Fused(torch.autograd.Function):
         s = res.shape[0]
         _run([functools.partial(ctx.lib.kp_backward, u.data_ptr(), table.data_ptr(), a, b, s, res.data_ptr(),
                                 offs.data_ptr(), g.data_ptr(), buf.data_ptr())
-              for (a, b), buf in zip(ranges, bufs)])
+              for (a, b), buf in zip(ranges, bufs)], keep=(u, table, res, offs, g, *bufs))
         gt = bufs[0]
         for b in bufs[1:]:
             gt += b
@@ -201,5 +214,5 @@ def fused_sh4(dirs: torch.Tensor):
     dirs = dirs.contiguous()
     out = dirs.new_empty(dirs.shape[0], 16)
     _run([functools.partial(lib.kp_sh4, dirs.data_ptr(), a, b, out.data_ptr())
-          for a, b in _split(dirs.shape[0], torch.get_num_threads())])
+          for a, b in _split(dirs.shape[0], torch.get_num_threads())], keep=(dirs, out))
     return out

@@ -235,3 +235,38 @@ def test_nan_and_far_points_are_safe(backend):
     sigma, rgb = f(xyz, torch.nn.functional.normalize(torch.ones(3, 3), dim=-1))
     assert torch.equal(sigma[:2], torch.zeros(2)) and sigma[2] > 0
     assert torch.isfinite(rgb).all()
+
+
+def test_an_interrupted_kernel_call_keeps_its_tensors_alive_until_its_workers_end():
+    # An interrupt (senerf raises SIGTERM as KeyboardInterrupt) right after the main thread's share of the fused
+    # kernel left _run while a worker still wrote into the output tensor, which the caller then freed: senerf-fit
+    # died of a segmentation fault instead of exiting 130 (2 of 13 SIGTERMs in a review; so at 16e5117). The
+    # tensors a call writes into now stay referenced by its workers until they end.
+    import gc
+    import threading
+    import time
+    import weakref
+
+    from senerf.fields.ckernel import _run
+
+    kept = torch.zeros(4)
+    alive = weakref.ref(kept)
+    seen = []
+    done = threading.Event()
+
+    def worker():
+        time.sleep(0.3)   # still "writing" when the caller has dropped its reference
+        seen.append(alive() is not None)
+        done.set()
+
+    def main_share():
+        raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        _run([main_share, worker], keep=(kept,))
+    del kept
+    gc.collect()
+    assert done.wait(5.0) and seen == [True]
+    out = []
+    _run([lambda: out.append(0), lambda: out.append(1), lambda: out.append(2)], keep=())   # the ordinary case
+    assert sorted(out) == [0, 1, 2]
