@@ -98,6 +98,22 @@ def _check_demo_folder(out: Path, overwrite: bool) -> None:
                          "--overwrite to put the demo beside, or another --out", file=out)
 
 
+def _check_fit_seed(out: Path, seed: int, overwrite: bool) -> None:
+    """Refuse (unless ``overwrite``) a folder whose demo was fitted with another seed: the demo's scene is drawn
+    from the seed, so redrawing it would change the photos under the earlier fit before senerf-fit refused the run
+    (its run.json would then see scene files differ, and senerf-render would render it against the new ones)."""
+    marker, run_file = out / "demo_scene" / "procedural.json", out / "fit" / "run.json"
+    if overwrite or not (marker.is_file() and run_file.is_file()):
+        return
+    try:
+        drawn = json.loads(marker.read_text()).get("camera_seed")
+    except (OSError, ValueError, AttributeError):
+        return   # a damaged marker: the scene is rebuilt and senerf-fit compares the run
+    if drawn is not None and drawn != seed:
+        raise InputError(f"holds a different run (train.seed: {drawn} in the folder, {seed} now; the demo's scene is "
+                         f"drawn from the seed too); use --overwrite or another --out", file=out / "fit")
+
+
 def run_demo(args, argv: list[str] | None = None) -> int:
     """Run the demo for parsed ``senerf-fit`` arguments (``argv``: the arguments they were parsed from).
 
@@ -110,6 +126,7 @@ def run_demo(args, argv: list[str] | None = None) -> int:
     refuse_ignored_options(args, argv)
     out = output_folder(args.out if args.out is not None else Path("runs") / "demo", "--out")
     _check_demo_folder(out, args.overwrite)
+    _check_fit_seed(out, args.seed, args.overwrite)   # before the scene is redrawn for another seed
     scene_dir = ensure_demo_scene(out / "demo_scene", seed=args.seed)
     fit_out = out / "fit"
     argv = [str(scene_dir), "--views", ",".join(map(str, DEMO_FEWSHOT_VIEWS)), "--preset", DEMO_PRESET,

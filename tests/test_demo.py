@@ -167,3 +167,24 @@ def test_demo_hands_its_own_choices_and_the_users_to_the_fit(tmp_path, monkeypat
     assert run_demo(senerf.cli.build_parser().parse_args(argv), argv) == 1
     assert (calls[-1].overwrite, calls[-1].quiet, calls[-1].steps, calls[-1].batch_rays) == (False, False, None, 64)
     assert "PSNR" not in capsys.readouterr().out
+
+
+def test_another_seed_is_refused_before_the_scene_is_redrawn(tmp_path, capsys, monkeypatch):
+    # the scene was redrawn for the new seed, then senerf-fit refused the run: the earlier fit's photos had
+    # changed under it (so at 908b324)
+    from senerf import demo
+
+    out = tmp_path / "demo"
+    (out / "demo_scene").mkdir(parents=True)
+    marker = out / "demo_scene" / "procedural.json"
+    marker.write_text(json.dumps({"camera_seed": 0}))
+    (out / "fit").mkdir()
+    (out / "fit" / "run.json").write_text("{}")
+    drawn = []
+    monkeypatch.setattr(demo, "ensure_demo_scene", lambda scene_dir, seed=0: drawn.append(seed) or scene_dir)
+    monkeypatch.setattr("senerf.cli.main", lambda argv: 0 if drawn else 1)   # reached only past the checks
+    assert main(["--demo", "--out", str(out), "--seed", "1", "--quiet"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err == (f"senerf-fit: error: {out / 'fit'}: holds a different run (train.seed: 0 in the folder, 1 now; "
+                   f"the demo's scene is drawn from the seed too); use --overwrite or another --out")
+    assert drawn == [] and json.loads(marker.read_text()) == {"camera_seed": 0}
