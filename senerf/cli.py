@@ -60,7 +60,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("scene", nargs="?", help="scene folder (NeRF Synthetic / instant-ngp / nerfstudio / LLFF / COLMAP)")
     g = p.add_argument_group("views")
     g.add_argument("--views", type=argument_type(parse_views),
-                   help="training view indices, e.g. 0,1,51 (into the train split)")
+                   help="training view indices, e.g. 0,1,51 (into the train split of a scene that has one, NeRF "
+                        "Synthetic style; else into all images)")
     g.add_argument("--n-views", type=int_flag("--n-views"), help="number of views (llff, spread, random8)")
     g.add_argument("--protocol", choices=_CLI_PROTOCOLS,
                    help="few-shot protocol (default: 'views' with --views; extreme for the NeRF Synthetic scenes; "
@@ -81,7 +82,7 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--iterations", type=int_flag("--iterations", allow_zero=True), default=None,
                    help="self-training iterations after the baseline (0 = baseline only; default: the "
                         "preset's: 3 for balanced, 1 for fast)")
-    t.add_argument("--device", default="cpu", help="cpu or cuda")
+    t.add_argument("--device", default="cpu", help="cpu, cuda or cuda:N")
     t.add_argument("--seed", type=int_flag("--seed", allow_zero=True, maximum=SEED_MAX), default=0)
     m = p.add_argument_group("model overrides (default: chosen from the scene and printed)")
     m.add_argument("--field", choices=("kplanes", "nerf"),

@@ -179,6 +179,9 @@ def load_fitted_run(folder, iteration: int | None = None, device: str = "cpu") -
         raise InputError("not a folder", file=folder)
     run_path, metrics_path = folder / "run.json", folder / "metrics.json"
     run = _read_json(run_path)
+    if not metrics_path.exists():   # a fit that has not finished its first iteration (or was killed in it)
+        raise InputError("holds no finished iteration yet (no metrics.json); let senerf-fit finish one (rerun its "
+                         "command to resume)", file=folder)
     metrics = _read_json(metrics_path)
     rows = _key(metrics, "iterations", metrics_path, list)
     done = sorted(r["iteration"] for r in rows if isinstance(r, dict) and type(r.get("iteration")) is int)

@@ -145,6 +145,9 @@ def test_folders_that_are_not_finished_runs_are_refused_by_name(runs, tmp_path, 
     (broken / "metrics.json").write_text(json.dumps(rows))
     assert main([str(broken)]) == 2
     assert "metrics.json: holds no finished iteration yet" in _error(capsys)
+    (broken / "metrics.json").unlink()   # a fit killed in its first iteration: run.json, no metrics.json
+    assert main([str(broken)]) == 2      # (said "metrics.json: not found: is this a senerf-fit output folder?")
+    assert f"{broken}: holds no finished iteration yet (no metrics.json); let senerf-fit finish one" in _error(capsys)
     moved = tmp_path / "moved"
     shutil.copytree(runs.base, moved, ignore=shutil.ignore_patterns("render"))
     record = json.loads((moved / "run.json").read_text())

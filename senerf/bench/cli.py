@@ -52,7 +52,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     Errors raise :class:`InputError` (:class:`senerf.cliargs.OneLineParser`, inherited by the subcommands), so
     that :func:`main` prints them as one line; numeric flags are checked here, naming the flag."""
-    parser = OneLineParser(prog="senerf-bench", description=__doc__.split("\n\n")[0])
+    parser = OneLineParser(prog="senerf-bench", description="Run, summarize, report and plot benchmarks; angles: "
+                                                            "per-view PSNR against the angle to the nearest input.")
     sub = parser.add_subparsers(dest="command", required=True)
 
     run = sub.add_parser("run", help="run the grid scenes x protocols x methods x presets x seeds (resumable)")
@@ -64,7 +65,8 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--presets", nargs="+", default=["fast"], help=", ".join(PRESETS))
     run.add_argument("--seeds", nargs="+", type=int_flag("--seeds", allow_zero=True, maximum=SEED_MAX), default=[0])
     run.add_argument("--iterations", type=int_flag("--iterations"), default=3,
-                     help="self-training rounds K (default 3)")
+                     help="self-training rounds K (default 3 whatever the preset; senerf-fit's fast preset runs 1: "
+                          "pass --iterations 1 to match it)")
     run.add_argument("--steps", type=int_flag("--steps"), default=None, help="override the preset's --steps")
     run.add_argument("--device", choices=["cpu", "cuda"], default="cpu")
     run.add_argument("--out", default="bench_out", help="output folder (results.jsonl, runs/)")

@@ -179,7 +179,7 @@ def closest_point_to_axes(c2w) -> np.ndarray:
         >>> closest_point_to_axes(poses).round(9).tolist()
         [1.0, 2.0, 3.0]
     """
-    arr = check_pose(c2w)
+    arr = validate_rigid(c2w, atol=POSE_ATOL, name="c2w")   # a scaled axis would weigh its camera differently
     a = arr.astype(np.float64).reshape((-1,) + arr.shape[-2:])
     if a.shape[0] == 0 or not np.isfinite(a).all():
         raise ValueError("closest_point_to_axes: need at least one finite pose")
@@ -226,6 +226,7 @@ def default_up(input_c2w) -> np.ndarray:
         raise ValueError(f"input_c2w: expected shape (m, 4, 4) with m >= 1, got {a.shape}")
     if not np.isfinite(a[:, :3, :3]).all():
         raise ValueError("default_up: input_c2w holds non-finite rotations")
+    validate_rigid(a, atol=POSE_ATOL, name="input_c2w")
     mean_up = -a[:, :3, 1].mean(axis=0)
     norm = np.linalg.norm(mean_up)
     x = a[:, :3, 0]
@@ -348,6 +349,8 @@ def nearest_view_angles(train_c2w: np.ndarray, test_c2w: np.ndarray,
     for name, a in (("train_c2w", train_c2w), ("test_c2w", test_c2w)):
         if a.ndim != 3 or a.shape[1:] not in ((4, 4), (3, 4)) or a.shape[0] == 0:
             raise ValueError(f"{name} must be (k, 4, 4) or (k, 3, 4) with k >= 1, got {a.shape}")
+        if center is None and np.isfinite(a).all():   # the optical axes are used: they must be unit
+            validate_rigid(a, atol=POSE_ATOL, name=name)
     if center is None:
         d_tr, d_te = train_c2w[:, :3, 2].copy(), test_c2w[:, :3, 2].copy()
     else:

@@ -398,3 +398,23 @@ def test_sample_pseudo_views_names_bad_counts_and_centres():
         sample_pseudo_views(inputs, 1.0, 2, np.random.default_rng(0), center=(0.0, 0.0))
     with pytest.raises(ValueError, match="default_up: input_c2w holds non-finite rotations"):
         default_up(np.full((2, 4, 4), np.nan))
+
+
+def test_functions_reading_camera_axes_refuse_scaled_or_mirrored_rotations():
+    # closest_point_to_axes, default_up and nearest_view_angles (optical-axis mode) took a rotation scaled by 2
+    # or a reflection without a word, where the README says every function that uses a rotation checks it
+    # (so at 74c7cd8)
+    from senerf.geometry import nearest_view_angles
+
+    poses = pose_from_spherical(np.array([0.0, 90.0, 200.0]), 20.0, 4.0)
+    scaled, mirrored = poses.copy(), poses.copy()
+    scaled[1, :3, :3] *= 2.0
+    mirrored[2, :3, 0] *= -1.0
+    for bad in (scaled, mirrored):
+        with pytest.raises(ValueError, match="c2w"):
+            closest_point_to_axes(bad)
+        with pytest.raises(ValueError, match="input_c2w"):
+            default_up(bad)
+        with pytest.raises(ValueError, match="train_c2w"):
+            nearest_view_angles(bad, poses, center=None)
+    assert np.isfinite(nearest_view_angles(scaled, poses)).all()   # positions only: the rotation is not used
