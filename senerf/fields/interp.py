@@ -8,7 +8,9 @@ quad with one ``index_add_`` into a ``(rows, 4F)`` buffer.  This is the pure-PyT
 on CPU the compiled kernel of :mod:`senerf.fields.ckernel` is several times faster.
 
 Reference (:func:`plane_interp_reference`): ``torch.nn.functional.grid_sample(align_corners=True)``
-plane by plane.  Both agree in value and gradient (tests/fields/test_kplanes.py).
+plane by plane.  Both agree in value and gradient (tests/fields/test_kplanes.py), except exactly on the box's
+faces (``u = +-1``), where the interpolation has a kink: ``gather`` returns a one-sided gradient there and
+``grid_sample`` 0, both valid subgradients.
 """
 
 from __future__ import annotations

@@ -154,6 +154,8 @@ def render_image(field, origins, dirs, near, far, n_samples: int, background=Non
                         dtype=torch.float32, device=dev)
     if o.ndim != 3 or o.shape[-1] != 3 or d.shape != o.shape:
         raise ValueError(f"origins/dirs: expected equal shapes (H, W, 3), got {tuple(o.shape)}, {tuple(d.shape)}")
+    if isinstance(chunk, bool) or not isinstance(chunk, (int, np.integer)) or chunk < 1:
+        raise ValueError(f"chunk: expected an integer >= 1 (rays per field call), got {chunk!r}")
     h, w = o.shape[:2]
     n = h * w
     nr = torch.as_tensor(np.asarray(near) if not torch.is_tensor(near) else near, dtype=torch.float32,
@@ -164,8 +166,8 @@ def render_image(field, origins, dirs, near, far, n_samples: int, background=Non
     rgb = np.empty((n, 3), np.float32)
     acc = np.empty(n, np.float32)
     dist = np.empty(n, np.float32)
-    for s in range(0, n, max(1, int(chunk))):
-        e = min(n, s + chunk)
+    for s in range(0, n, int(chunk)):
+        e = min(n, s + int(chunk))
         out = render_rays(field, o[s:e], d[s:e], nr[s:e], fr[s:e], n_samples, generator, background,
                           occupancy, randomized)
         rgb[s:e] = out["rgb"].float().cpu().numpy()

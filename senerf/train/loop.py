@@ -183,7 +183,9 @@ def train_field(field: torch.nn.Module, rays: RayBatchSource, cfg: TrainConfig,
             this step renders with (None before ``cfg.occupancy_warmup``); must draw randomness only from
             ``generator``.
         checkpoint: a ``.pt`` path: resumed from when it exists, written atomically every
-            ``cfg.checkpoint_every`` steps and at the end.  On the CPU a resume ends bit for bit as an
+            ``cfg.checkpoint_every`` steps and at the end.  It is matched by the settings, the ray count and the
+            field's shapes, not the pixels: a caller that changes the images keeps its own record (senerf-fit's
+            ``run.json`` and ``run_selftraining``'s ``scene_files.json`` hold the scene files' digests).  On the CPU a resume ends bit for bit as an
             uninterrupted run (on CUDA it continues the same random stream, but CUDA's ``index_add_`` and
             ``cumsum`` are not deterministic, so not to the bit); on another device type (CPU <-> CUDA) the ray
             batches continue from a new stream seeded from ``(cfg.seed, step)``, with a warning.
@@ -228,7 +230,7 @@ def train_field(field: torch.nn.Module, rays: RayBatchSource, cfg: TrainConfig,
         for group in optimizer.param_groups:
             group["lr"] = cfg.lr * lr_factor(step, cfg)
         if hasattr(field, "set_progress"):
-            field.set_progress(step)
+            field.set_progress(step, cfg.steps)   # a field built without anneal_steps anneals over steps / 4
         if occupancy is not None and step >= cfg.occupancy_warmup and cfg.occupancy_every \
                 and (step - cfg.occupancy_warmup) % cfg.occupancy_every == 0:
             occupancy.update(field)

@@ -166,3 +166,7 @@ def test_render_image_matches_render_rays_and_chunking():
         ref = render_rays(field, o, d, near, far, 16, None, torch.ones(3), randomized=False)
     np.testing.assert_allclose(img["rgb"].reshape(-1, 3), ref["rgb"].numpy(), rtol=1e-5, atol=1e-6)
     np.testing.assert_allclose(img["ray_dist"], img2["ray_dist"], rtol=1e-5)
+    # chunk 0 or below stepped by 1 but sliced nothing: uninitialised memory came back (so at 98f1a55)
+    for bad in (0, -3, 2.5, True):
+        with pytest.raises(ValueError, match="chunk: expected an integer >= 1"):
+            render_image(field, o.view(6, 5, 3), d.view(6, 5, 3), 1.5, 4.5, 16, chunk=bad)

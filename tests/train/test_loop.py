@@ -213,3 +213,17 @@ def test_resume_on_cuda_continues_with_host_step_counters(tmp_path, monkeypatch)
     a, b = full.field.state_dict(), resumed.field.state_dict()
     for k in a:
         torch.testing.assert_close(a[k], b[k], rtol=1e-3, atol=1e-4)
+
+
+def test_a_nerf_field_built_without_its_step_count_anneals_over_a_quarter_of_the_training():
+    # build_field(model) (steps=None, documented) gave a NeRF field without anneal_steps, and train_field's
+    # set_progress(step) raised "give total_steps" at step 0 (so at 98f1a55). Expected: the same training as a
+    # field built with steps=cfg.steps (annealing over cfg.steps / 4), bit for bit.
+    import dataclasses
+
+    nerf = dataclasses.replace(MODEL, field="nerf")
+    rays, cfg = _rays(model=nerf), _cfg(steps=8)
+    bare = train_field(build_field(nerf, seed=0), rays, cfg, progress=False).field
+    told = train_field(build_field(nerf, seed=0, steps=cfg.steps), rays, cfg, progress=False).field
+    for (name, a), (_, b) in zip(bare.state_dict().items(), told.state_dict().items()):
+        assert torch.equal(a, b), name
