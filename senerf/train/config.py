@@ -311,6 +311,11 @@ def json_ready(value):
     return value
 
 
+#: Boxes wider than this (world units) get their densities and occupancy threshold scaled to it (``choose_model``);
+#: lego's box (3.02 units) and the measured benchmark scenes lie between 1 and this, where nothing is scaled.
+DENSITY_PLATEAU_WIDTH = 4.0
+
+
 def camera_aabb(c2w: np.ndarray, fov_deg: float, margin: float = 1.05) -> tuple[np.ndarray, float, np.ndarray]:
     """A cube the cameras look at: centre = point nearest all optical axes, half size = what one camera
     sees across at the centre's distance.
@@ -426,6 +431,16 @@ def choose_model(scene, train_idx, overrides: Mapping[str, Any] | None = None,
         why["occupancy_resolution"] = "64^3 occupancy grid skips empty space"
         if 2 * half < 1.0:  # density is per world unit: a box s < 1 unit wide starts 1/s times denser
             chosen["density_shift"] = chosen.get("density_shift", 0.0) - math.log(2 * half)
+        elif 2 * half > DENSITY_PLATEAU_WIDTH:
+            # and a box s > 4 units wide starts s/4 times more opaque, while the grid's absolute threshold drops
+            # content it has learnt (a scene at 10x its unit: 6.5 dB against 15.2): densities and the threshold
+            # are scaled back to a 4-unit box (boxes 1-4 units wide, lego's 3 included, are as measured)
+            scale = 2 * half / DENSITY_PLATEAU_WIDTH
+            field_shift = 0.0 if overrides.get("field") == "nerf" else math.log(scale)   # NeRF has no shift
+            chosen["density_shift"] = chosen.get("density_shift", 0.0) - field_shift
+            chosen["occupancy_threshold"] = ModelConfig.occupancy_threshold / scale
+            why["aabb"] += (f"; densities and the occupancy threshold scaled by 1/{scale:.3g} for a box "
+                            f"{2 * half:.3g} units wide")
         extent_px = 2 * half / dist * intr.fx  # the box's width in pixels at the centre's distance
         chosen["multires"] = (1, 2)
     res = _plane_resolution(max(H, W), extent_px)

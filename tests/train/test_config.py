@@ -7,6 +7,7 @@ import math
 from pathlib import Path
 
 import numpy as np
+import torch
 import pytest
 
 from senerf.data import Scene
@@ -235,3 +236,62 @@ def test_a_field_of_view_too_narrow_for_a_box_is_refused_naming_the_intrinsics()
     with pytest.raises(InputError, match="the cameras see a box of half size 0 .*check the focal length") as info:
         choose_model(narrow, np.arange(6))
     assert info.value.field == "camera intrinsics"
+
+
+def _scaled(scene: Scene, factor: float) -> Scene:
+    c2w = scene.c2w.copy()
+    c2w[:, :3, 3] *= factor
+    return dataclasses.replace(scene, c2w=c2w)
+
+
+def test_a_wide_box_scales_densities_and_the_occupancy_threshold_to_a_four_unit_one():
+    # a scene 10x its unit trained to 6.5 dB against 15.2 (a review's measurement): its field started 10x more
+    # opaque and the grid's absolute threshold emptied it (so at d8df175). Boxes 1-4 units wide (lego's 3.02)
+    # are unchanged, and so is the small-box rule below 1 unit.
+    from senerf.train.config import DENSITY_PLATEAU_WIDTH
+
+    base = choose_model(_scene(), np.arange(6), echo=lambda s: None)
+    width = float(np.ptp(np.asarray(base.aabb), axis=0).max())
+    assert 1.0 < width < DENSITY_PLATEAU_WIDTH and base.density_shift == 0.0 and base.occupancy_threshold == 0.1
+    for factor in (10.0, 1000.0):
+        lines = []
+        model = choose_model(_scaled(_scene(), factor), np.arange(6), echo=lines.append)
+        w = float(np.ptp(np.asarray(model.aabb), axis=0).max())
+        assert w == pytest.approx(width * factor, rel=1e-3)
+        assert model.density_shift == pytest.approx(-math.log(w / 4.0))
+        assert model.occupancy_threshold == pytest.approx(0.1 * 4.0 / w)
+        assert any("densities and the occupancy threshold scaled by 1/" in line for line in lines)
+        nerf = choose_model(_scaled(_scene(), factor), np.arange(6), {"field": "nerf"}, echo=lambda s: None)
+        assert nerf.density_shift == 0.0 and nerf.occupancy_threshold == pytest.approx(0.1 * 4.0 / w)
+    small = choose_model(_scaled(_scene(), 0.1), np.arange(6), echo=lambda s: None)
+    w = float(np.ptp(np.asarray(small.aabb), axis=0).max())
+    assert small.density_shift == pytest.approx(-math.log(w), rel=1e-3) and small.occupancy_threshold == 0.1
+
+
+def test_the_grid_keeps_a_fog_of_one_optical_depth_at_any_scale():
+    # a fog ball of optical depth 5 across its radius (density 5 / r, r a quarter of the box) occupies the same
+    # cells whatever the unit; with the absolute threshold it vanished at 100x (so at d8df175)
+    from senerf.fields import RadianceField
+    from senerf.train import make_occupancy
+
+    def fog_fraction(factor: float) -> float:
+        model = choose_model(_scaled(_scene(), factor), np.arange(6), echo=lambda s: None)
+        box = np.asarray(model.aabb)
+        radius = float(np.ptp(box, axis=0).max()) / 4.0
+        centre = torch.tensor(box.mean(axis=0) - np.asarray(model.frame_origin), dtype=torch.float32)
+
+        class Fog(RadianceField):
+            def density(self, xyz):
+                return ((xyz - centre).norm(dim=-1) < radius).float() * (5.0 / radius)
+
+            def forward(self, xyz, dirs):
+                return self.density(xyz), torch.full((xyz.shape[0], 3), 0.5)
+
+        grid = make_occupancy(model, "cpu")
+        grid.update(Fog())
+        return grid.occupied_fraction()
+
+    unit = fog_fraction(1.0)
+    assert unit >= 4.0 / 3.0 * math.pi / 64.0   # at least the ball's share of the box (dilated by the grid)
+    for factor in (10.0, 100.0):
+        assert fog_fraction(factor) == pytest.approx(unit, abs=0.01), factor
