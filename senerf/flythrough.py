@@ -391,8 +391,13 @@ def write_frames(out: Path, frames: dict, record: dict, fps: float, overwrite: b
         os.chmod(tmp, 0o755)
         if out.exists():
             old = out.with_name(f".{out.name}.old-{os.getpid()}")
-            out.rename(old)
-            tmp.rename(out)
+            try:
+                out.rename(old)
+                tmp.rename(out)
+            except BaseException:   # Ctrl-C / SIGTERM between the renames: the earlier output goes back
+                if old.exists() and not out.exists():
+                    old.rename(out)
+                raise
             shutil.rmtree(old, ignore_errors=True)
         else:
             tmp.rename(out)
@@ -479,6 +484,10 @@ def _check_memory(intrinsics, renders: int = 1) -> None:
                          field="--frames")
 
 
+#: The names senerf-render writes into its folder (write_frames).
+_OUR_FILES = re.compile(r"(rgb|depth)_\d{3,}\.png|(rgb|depth|compare)\.gif|path\.json")
+
+
 def _is_ours(folder: Path) -> bool:
     """True when ``folder`` holds a ``path.json`` written by senerf-render."""
     try:
@@ -504,6 +513,10 @@ def _check_out(out: Path, overwrite: bool) -> None:
     if not _is_ours(out):
         raise InputError(f"is not a senerf-render output (no {_MARKER} of ours); --overwrite never deletes files "
                          f"it did not make; choose another --out", file=out)
+    foreign = sorted(p.name for p in out.iterdir() if not (_OUR_FILES.fullmatch(p.name) or p.name.startswith(".")))
+    if foreign:   # --overwrite replaces the whole folder: a file put there since would go with it
+        raise InputError(f"holds {foreign[0]}, which senerf-render did not write; --overwrite replaces only its own "
+                         f"outputs: move it or choose another --out", file=out)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -519,12 +532,13 @@ def build_parser() -> argparse.ArgumentParser:
                         "(the run's test views)")
     p.add_argument("--frames", type=int_flag("--frames", maximum=10000), default=None,
                    help=f"frames of an orbit or spiral (default {FRAMES_DEFAULT})")
-    p.add_argument("--fps", type=float_flag("--fps", positive=True, maximum=50.0), default=20.0,
-                   help="GIF frame rate, at most 50 (GIF delays are whole hundredths of a second; default 20)")
+    p.add_argument("--fps", type=float_flag("--fps", minimum=0.01, maximum=50.0), default=20.0,
+                   help="GIF frame rate, 0.01 to 50 (GIF delays are whole hundredths of a second, at most 655 s; "
+                        "default 20)")
     p.add_argument("--iteration", type=int_flag("--iteration", allow_zero=True), default=None,
                    help="which finished iteration's field (default: the last; 0 = the teacher)")
-    p.add_argument("--scale", type=float_flag("--scale", positive=True), default=1.0,
-                   help="render at this multiple of the fitted resolution (default 1)")
+    p.add_argument("--scale", type=float_flag("--scale", positive=True, maximum=64.0), default=1.0,
+                   help="render at this multiple of the fitted resolution, at most 64 (default 1)")
     p.add_argument("--elevation", type=float_flag("--elevation", -89.0, maximum=89.0), default=None, metavar="DEG",
                    help="orbit elevation, -89 to 89 (default: the input views' mean)")
     p.add_argument("--compare", action="store_true",

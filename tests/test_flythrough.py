@@ -117,7 +117,7 @@ def test_spiral_uses_the_scenes_bounds(runs):
     (["--scale", "0.3"], "--scale: 16x16 times 0.3 is not a whole number of pixels"),
     (["--frames", "0"], "argument --frames: must be >= 1"),
     (["--fps", "0"], "argument --fps"),
-    (["--fps", "60"], "argument --fps: expected a finite number > 0 and <= 50"),
+    (["--fps", "60"], "argument --fps: expected a finite number >= 0.01 and <= 50"),
     (["--elevation", "90"], "argument --elevation"),
     (["--path", "test", "--frames", "5"], "--frames: the test path has one frame per test view"),
     (["--frames", "10000", "--scale", "64"], "--frames: 10000 frames at 1024x1024 need about"),
@@ -660,3 +660,45 @@ def test_views_are_found_by_their_photos_when_the_scene_moved_them(runs, tmp_pat
     assert main([str(run_dir), "--out", str(tmp_path / "o"), "--quiet"]) == 2
     assert f"{run_dir / 'metrics.json'}: train_images: the fit's photo train/gone.png is not in the scene any more" \
         in _error(capsys)
+
+
+def test_overwrite_keeps_files_put_into_an_earlier_render_and_an_interrupt_between_the_renames_restores_it(
+        tmp_path, monkeypatch):
+    # --overwrite replaced the whole folder, notes.txt put there by the user included, and a SIGTERM between
+    # moving the earlier render aside and renaming the new one into place hid the earlier render (so at 9e0fdc2)
+    from pathlib import Path
+
+    from senerf.errors import InputError
+    from senerf.flythrough import write_frames
+
+    rgb = np.zeros((2, 4, 4, 3), np.uint8)
+    frames = dict(rgb=rgb, depth=rgb)
+    out = write_frames(tmp_path / "orbit_iter1", frames, {"senerf_render": "x"}, fps=10.0)
+    (out / "notes.txt").write_text("keep")
+    with pytest.raises(InputError, match="holds notes.txt, which senerf-render did not write"):
+        write_frames(out, frames, {"senerf_render": "y"}, fps=10.0, overwrite=True)
+    assert (out / "notes.txt").read_text() == "keep"
+    (out / "notes.txt").unlink()
+    (out / ".DS_Store").write_text("")   # hidden files are not the user's work
+    real_rename = Path.rename
+
+    def interrupted_second_rename(self, target):
+        if self.name.startswith(".orbit_iter1.") and ".old-" not in self.name and Path(target) == out:
+            raise KeyboardInterrupt   # SIGTERM, as senerf's commands raise it, after the first rename
+        return real_rename(self, target)
+
+    monkeypatch.setattr(Path, "rename", interrupted_second_rename)
+    with pytest.raises(KeyboardInterrupt):
+        write_frames(out, frames, {"senerf_render": "y"}, fps=10.0, overwrite=True)
+    monkeypatch.undo()
+    assert json.loads((out / "path.json").read_text())["senerf_render"] == "x"   # the earlier one, in place
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith(".orbit_iter1")]
+
+
+def test_frame_rates_a_gif_cannot_hold_and_scales_beyond_64_are_refused_up_front(runs, tmp_path, capsys):
+    # --fps 0.001 crashed after the whole render (a GIF delay over 655.35 s), --scale 1e300 crashed in the
+    # memory check (so at 9e0fdc2)
+    for flag, value in (("--fps", "0.001"), ("--scale", "1e300"), ("--scale", "65")):
+        assert main([str(runs.base), "--out", str(tmp_path / "x"), flag, value, "--quiet"]) == 2
+        assert f"{flag}: expected a finite number" in _error(capsys)
+    assert not (tmp_path / "x").exists()

@@ -25,7 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from senerf.atomic import atomic_write_text, output_file, output_folder
-from senerf.cliargs import SEED_MAX, OneLineParser, float_flag, int_flag
+from senerf.cliargs import SEED_MAX, OneLineParser, check_device, float_flag, int_flag, run_command
 from senerf.data.load import scene_root
 from senerf.errors import InputError
 
@@ -112,24 +112,23 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Entry point; returns the exit status."""
+    """Entry point; returns the exit status (0 ok, 2 bad input in one line, 130 interrupted by Ctrl-C or SIGTERM,
+    1 internal error with the traceback), as senerf-fit's."""
     argv = list(sys.argv[1:] if argv is None else argv)
-    try:
-        args = build_parser().parse_args(argv)
-        if args.command == "run":
-            return _cmd_run(args, argv)
-        if args.command == "summarize":
-            return _cmd_summarize(args)
-        if args.command == "report":
-            return _cmd_report(args, argv)
-        if args.command == "angles":
-            return _cmd_angles(args)
-        return _cmd_plot(args)
-    except InputError as exc:
-        print(f"senerf-bench: error: {exc}", file=sys.stderr)
-        return 2
-    except SystemExit as exc:  # --help
-        return exc.code if isinstance(exc.code, int) else 0 if exc.code is None else 2
+    return run_command("senerf-bench", lambda: _dispatch(build_parser().parse_args(argv), argv),
+                       "finished runs are in the results file; rerun to resume")
+
+
+def _dispatch(args: argparse.Namespace, argv: list[str]) -> int:
+    if args.command == "run":
+        return _cmd_run(args, argv)
+    if args.command == "summarize":
+        return _cmd_summarize(args)
+    if args.command == "report":
+        return _cmd_report(args, argv)
+    if args.command == "angles":
+        return _cmd_angles(args)
+    return _cmd_plot(args)
 
 
 def _cmd_run(args: argparse.Namespace, argv: list[str]) -> int:
@@ -159,6 +158,11 @@ def _cmd_run(args: argparse.Namespace, argv: list[str]) -> int:
     if args.dry_run:
         print("\n".join(dry_run_lines(specs, results, cfg.runs_dir)))
         return 0
+    if not specs:
+        raise InputError("the grid of scenes, protocols, methods, presets and seeds holds no run (a protocol "
+                         "that fits none of the scenes?)", field="--protocols")
+    if args.device != "cpu" and not args.ray_address:   # the fits run here: every one would fail on it
+        check_device(args.device)
     _prepare_run_outputs(out, results, results_flag)
     try:
         executor = make_executor(args.workers, args.ray_address, args.cpus_per_run)
@@ -250,9 +254,24 @@ def _cmd_summarize(args: argparse.Namespace) -> int:
     return 0
 
 
+def _not_an_input(target, flag: str, inputs) -> None:
+    """Refuse writing ``target`` when it is one of the files read (the results file above all: a report written
+    over it would lose every measured run)."""
+    for name in inputs:
+        try:
+            same = Path(name).exists() and Path(target).exists() and os.path.samefile(target, name)
+        except OSError:
+            same = False
+        if same:
+            raise InputError(f"is {name}, which this command reads; choose another {flag}", file=target)
+
+
 def _cmd_report(args: argparse.Namespace, argv: list[str]) -> int:
     out = output_file(args.out, "--out") if args.out else None
     into = output_file(args.into, "--into") if args.into else None
+    for target, flag in ((out, "--out"), (into, "--into")):
+        if target is not None:
+            _not_an_input(target, flag, [args.results, *args.masks])
     text = make_report(_load(args.results), ["senerf-bench", *argv], title=args.title)
     for name in args.masks:
         try:
@@ -261,7 +280,7 @@ def _cmd_report(args: argparse.Namespace, argv: list[str]) -> int:
             raise InputError(f"not JSON ({exc})", file=name) from None
         try:
             section = mask_quality_section(doc, name)
-        except ValueError:
+        except (ValueError, KeyError, TypeError, AttributeError):   # a row without a field, or of another shape
             raise InputError("not a `bench_selftrain.py masks` result", file=name) from None
         text = text.rstrip("\n") + "\n\n" + section
     spliced = splice_report(_read_text(into), text, into) if into is not None else None
@@ -338,6 +357,7 @@ def _cmd_angles(args: argparse.Namespace) -> int:
     from senerf.data import load_scene   # numpy + imageio only; imported here to keep start-up light
 
     output_file(args.out, "--out")
+    _not_an_input(args.out, "--out", [args.results])
     proto = parse_protocol(args.protocol)
     scene = load_scene(args.scene, downscale=proto.downscale)
     name = scene.name
@@ -351,7 +371,10 @@ def _cmd_angles(args: argparse.Namespace) -> int:
     angles: dict[str, list] = {}
     psnr: dict[str, list] = {}
     for r in lines:
-        a, p = line_view_angles(r, scene.c2w, center)
+        try:
+            a, p = line_view_angles(r, scene.c2w, center)
+        except (ValueError, IndexError) as exc:   # a line whose views do not fit this scene (or lack per_view)
+            raise InputError(f"run {r['run_key']}: {str(exc).splitlines()[0]}", file=args.results) from None
         label = f"{r['method']} {preset_label(r)}" + (f" iter {r['iteration']}" if r["iteration"] else "")
         angles.setdefault(label, []).extend(a.tolist())
         psnr.setdefault(label, []).extend(p.tolist())

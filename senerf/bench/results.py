@@ -31,6 +31,7 @@ from __future__ import annotations
 import datetime as _dt
 import fcntl
 import json
+import math
 import os
 import uuid
 from pathlib import Path
@@ -111,6 +112,30 @@ def validate_line(line: dict) -> None:
     for name in ("lpips", "avg"):
         if isinstance(line[name], str) and line[name] != "unavailable":
             raise ValueError(f"{name}: string must be 'unavailable', got {line[name]!r}")
+    problem = _mistyped(line)
+    if problem is not None:
+        raise ValueError(problem)
+
+
+def _int_list(value) -> bool:
+    return isinstance(value, list) and all(isinstance(v, int) and not isinstance(v, bool) for v in value)
+
+
+def _mistyped(line: dict) -> str | None:
+    """The first field of ``line`` present with a value of the wrong type (a non-finite PSNR or SSIM, a list of
+    indices with a non-integer), or None; a field that is absent is not checked here."""
+    if line.get("status") != "ok":
+        return None if isinstance(line.get("run_key"), str) else "run_key: not a string"
+    for name, types in REQUIRED_OK_FIELDS.items():
+        if name in line and (isinstance(line[name], bool) or not isinstance(line[name], types)):
+            return f"{name}: {type(line[name]).__name__} is not {'/'.join(t.__name__ for t in types)}"
+    for name in ("psnr", "ssim"):
+        if name in line and not math.isfinite(line[name]):
+            return f"{name}: {line[name]!r} is not a finite number"
+    for name in ("resolution", "views", "test_views"):
+        if line.get(name) is not None and not _int_list(line[name]):
+            return f"{name}: expected a list of integers"
+    return None
 
 
 def append_lines(path: str | Path, lines: list[dict]) -> None:
@@ -144,7 +169,8 @@ _OK_FIELDS = frozenset({"scene", "protocol", "method", "preset", "seed", "iterat
 
 def load_results(path: str | Path) -> tuple[list[dict], int]:
     """All parseable lines of a results file, and the number of lines skipped as unparseable (not UTF-8,
-    not JSON, not a results line, or an "ok" line without the fields every finished line carries).
+    not JSON, not a results line, an "ok" line without the fields every finished line carries, or one with a
+    field of the wrong type: a string seed, a non-finite PSNR; see :func:`validate_line`).
 
     A missing file is an empty result (a fresh benchmark).
     """
@@ -163,6 +189,9 @@ def load_results(path: str | Path) -> tuple[list[dict], int]:
                 bad += 1
                 continue
             if isinstance(rec, dict) and "run_key" in rec and (rec.get("status") != "ok" or _OK_FIELDS <= rec.keys()):
+                if _mistyped(rec) is not None:   # would crash the tables, or count a run as done on a made-up figure
+                    bad += 1
+                    continue
                 records.append(rec)
             else:
                 bad += 1

@@ -38,6 +38,8 @@ def load_checkpoint(path: str | Path, map_location: str | torch.device = "cpu") 
     try:
         state = torch.load(path, map_location=map_location, weights_only=True)
     except Exception as exc:  # UnpicklingError for forbidden globals, RuntimeError for corrupt files
+        if isinstance(exc, OSError) and exc.errno is not None:   # permissions: not a damaged file to delete
+            raise InputError(f"cannot be read ({exc.strerror or exc})", file=path) from None
         # torch's own message suggests weights_only=False, i.e. running the file's code: not quoted
         raise InputError(f"refusing to load: not a plain-data checkpoint ({type(exc).__name__}; a damaged file, "
                          "or one senerf did not write, and senerf never runs code from a file); delete it to "

@@ -264,3 +264,69 @@ def test_run_refuses_to_append_to_a_file_that_is_not_results(blender_scene, fake
     log.write_text('{"level": "info", "msg": "a"}\n{"level": "warn", "msg": "b"}\n')
     assert main([*run, "--results", str(log), "--dry-run"]) == 2
     assert "not a senerf-bench results file (2 non-blank line(s)" in _one_error_line(capsys)
+
+
+def test_mistyped_lines_are_skipped_with_a_warning_not_crashed_on_or_counted(tmp_path, capsys):
+    # a string seed or iteration crashed summarize/report/plot with a TypeError, and a PSNR of "abc", null or
+    # NaN was averaged without a word (and counted the run as finished) (so at 9e0fdc2)
+    good = json.loads(_FINISHED_LINE)
+    results = tmp_path / "r.jsonl"
+    bad_values = [("seed", "0"), ("iteration", "1"), ("scene", 5), ("iterations", "x"), ("run_key", ["a"]),
+                  ("commit", None), ("psnr", "abc"), ("psnr", None), ("psnr", float("nan")), ("views", ["a"])]
+    lines = [_FINISHED_LINE] + [json.dumps({**good, "run_key": f"k{i}", name: value}) + "\n"
+                                for i, (name, value) in enumerate(bad_values)]
+    results.write_text("".join(lines))
+    records, bad = load_results(results)
+    assert [r["run_key"] for r in records] == ["k"] and bad == len(bad_values)
+    assert main(["summarize", str(results)]) == 0
+    captured = capsys.readouterr()
+    assert f"skipped {len(bad_values)} unparseable line(s)" in captured.err and "20.00" in captured.out
+
+
+def test_a_report_or_plot_over_its_own_results_file_is_refused(tmp_path, capsys):
+    # report --out results.jsonl replaced every measured run with the report (so at 9e0fdc2)
+    results = tmp_path / "r.jsonl"
+    results.write_text(_FINISHED_LINE)
+    assert main(["report", str(results), "--out", str(results)]) == 2
+    err = capsys.readouterr().err
+    assert err.strip() == (f"senerf-bench: error: {results}: is {results}, which this command reads; "
+                           f"choose another --out")
+    assert results.read_text() == _FINISHED_LINE
+
+
+def test_an_interrupt_exits_130_with_one_line(tmp_path, capsys, monkeypatch):
+    # SIGTERM (raised as KeyboardInterrupt by the handler run_command installs) ended senerf-bench with 143 and
+    # no word, where Ctrl-C gave 130 (so at 9e0fdc2)
+    import signal
+
+    from senerf.bench import cli
+
+    seen = []
+
+    def interrupted(args, argv):
+        seen.append(signal.getsignal(signal.SIGTERM))
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(cli, "_dispatch", interrupted)
+    assert main(["summarize", str(tmp_path / "r.jsonl")]) == 130
+    assert capsys.readouterr().err.startswith("senerf-bench: interrupted (")
+    assert seen and seen[0] not in (signal.SIG_DFL, None)   # a handler was in place for SIGTERM
+
+
+def test_a_local_cuda_run_without_a_gpu_and_an_empty_grid_are_refused_before_anything_runs(
+        blender_scene, fake_fit_command, tmp_path, capsys):
+    # each fit failed on --device cuda (exit 1 after writing failed lines), and a grid matching nothing printed
+    # "# 0 runs" and exited 0 (so at 9e0fdc2)
+    import pytest
+    import torch
+
+    if torch.cuda.is_available():
+        pytest.skip("this machine has a GPU")
+    out = tmp_path / "b"
+    assert main(_run_args(blender_scene, out, fake_fit_command, "--device", "cuda")) == 2
+    assert "--device: CUDA requested but torch sees no GPU" in capsys.readouterr().err
+    assert not (out / "results.jsonl").exists()
+    args = _run_args(blender_scene, out, fake_fit_command)
+    args[args.index("--protocols") + 1] = "llff3@504x378"   # an LLFF protocol: no Blender scene fits it
+    assert main(args) == 2
+    assert "--protocols: the grid of scenes" in capsys.readouterr().err

@@ -85,3 +85,25 @@ def test_only_dicts_are_saved_or_loaded(tmp_path):
     with pytest.raises(InputError, match="expected a dict"):
         load_checkpoint(tmp_path / "t.pt")
 
+
+
+def test_a_checkpoint_that_cannot_be_read_is_not_called_damaged(tmp_path, monkeypatch):
+    # a checkpoint at chmod 000 was "not a plain-data checkpoint (PermissionError; a damaged file ...); delete it
+    # to redo that step": advice to delete a good file (so at 9e0fdc2)
+    import errno
+
+    import torch
+
+    from senerf.errors import InputError
+    from senerf.train import load_checkpoint, save_checkpoint
+
+    path = tmp_path / "c.pt"
+    save_checkpoint(path, {"a": torch.zeros(2)})
+
+    def denied(*args, **kwargs):
+        raise PermissionError(errno.EACCES, "Permission denied", str(path))
+
+    monkeypatch.setattr(torch, "load", denied)
+    with pytest.raises(InputError) as info:
+        load_checkpoint(path)
+    assert str(info.value) == f"{path}: cannot be read (Permission denied)" and "delete" not in str(info.value)
