@@ -88,3 +88,22 @@ def test_angles_command_on_lego(lego_dir, tmp_path, capsys):
                  "synthetic-extreme3@100", "--out", "/proc/senerf-bench-test.png"]) == 2
     err = capsys.readouterr().err
     assert len(err.strip().splitlines()) == 1 and "--out" in err and "Traceback" not in err
+
+
+def test_angles_names_a_line_whose_views_do_not_fit_the_scene(lego_dir, tmp_path, capsys):
+    # test_views past the scene's views, or a line without per_view, ended in an IndexError / ValueError
+    # traceback (so at 79e672f)
+    from senerf.bench.cli import main
+    from senerf.bench.results import append_lines
+
+    line = {"run_key": "k", "attempt": "a", "status": "ok", "scene": "lego", "protocol": "synthetic-extreme3@100",
+            "method": "senerf", "preset": "fast", "seed": 0, "iterations": 1, "iteration": 1, "psnr": 18.0,
+            "views": [0, 1, 51], "test_views": [0, 9999], "per_view": {"psnr": [30.0, 15.0]}}
+    for name, edit in (("far", {}), ("noview", {"test_views": [0, 200], "per_view": None})):
+        results = tmp_path / f"{name}.jsonl"
+        append_lines(results, [{**line, **edit}])
+        assert main(["angles", str(results), "--scene", str(lego_dir), "--protocol", "synthetic-extreme3@100",
+                     "--out", str(tmp_path / f"{name}.png")]) == 2
+        err = capsys.readouterr().err.strip()
+        assert err.startswith(f"senerf-bench: error: {results}: run k: ") and "\n" not in err
+        assert not (tmp_path / f"{name}.png").exists()
