@@ -184,7 +184,11 @@ def load_fitted_run(folder, iteration: int | None = None, device: str = "cpu") -
                          "command to resume)", file=folder)
     metrics = _read_json(metrics_path)
     rows = _key(metrics, "iterations", metrics_path, list)
-    done = sorted(r["iteration"] for r in rows if isinstance(r, dict) and type(r.get("iteration")) is int)
+    for i, r in enumerate(rows):   # a row skipped here would make "the last iteration" an earlier one
+        if not (isinstance(r, dict) and type(r.get("iteration")) is int and r["iteration"] >= 0):
+            raise InputError(f"expected an integer >= 0, got {r.get('iteration') if isinstance(r, dict) else r!r}",
+                             file=metrics_path, field=f"iterations[{i}].iteration")
+    done = sorted(r["iteration"] for r in rows)
     if not done:
         raise InputError("holds no finished iteration yet; let senerf-fit finish one", file=metrics_path)
     k = done[-1] if iteration is None else int(iteration)
@@ -200,8 +204,12 @@ def load_fitted_run(folder, iteration: int | None = None, device: str = "cpu") -
     kind = run.get("scene_kind")
     if kind not in (None, "object", "forward_facing"):
         raise InputError(f"expected 'object' or 'forward_facing', got {kind!r}", file=run_path, field="scene_kind")
-    scene = load_scene(scene_dir, downscale=downscale, kind=kind)
     resolution = metrics.get("resolution")
+    if not (isinstance(resolution, list) and len(resolution) == 2
+            and all(type(v) is int and v > 0 for v in resolution)):   # before the scene is blamed for it
+        raise InputError(f"expected [H, W], two integers > 0, got {resolution!r}"[:200], file=metrics_path,
+                         field="resolution")
+    scene = load_scene(scene_dir, downscale=downscale, kind=kind)
     if list(scene.size) != resolution:
         raise InputError(f"the scene is {scene.size[0]}x{scene.size[1]} (H x W) at downscale {downscale:g}; the run "
                          f"was fitted at {resolution!r}"[:200], file=scene_dir)
