@@ -543,7 +543,7 @@ def _run(args, argv) -> int:
     else:
         extra = {k: v for k, v in config.items() if k not in ("train", "model", "selftrain")}
         metrics = selftrain[1](scene, train_idx, test_idx, model, train_cfg, st_cfg, out, command=argv,
-                               extra_config=extra, progress=progress)
+                               extra_config=extra, progress=progress, scene_files=identity["scene_files"])
     for it in metrics["iterations"]:
         print(f"{PROG}: iteration {it['iteration']}: PSNR {it['psnr']:.2f} dB, SSIM {it['ssim']:.3f}, "
               f"LPIPS {it['lpips']}, {it['seconds']:.0f} s")

@@ -521,7 +521,7 @@ def _check_out(out: Path, overwrite: bool) -> None:
     if not _is_ours(out):
         raise InputError(f"is not a senerf-render output (no {_MARKER} of ours); --overwrite never deletes files "
                          f"it did not make; choose another --out", file=out)
-    foreign = sorted(p.name for p in out.iterdir() if not (_OUR_FILES.fullmatch(p.name) or p.name.startswith(".")))
+    foreign = sorted(p.name for p in out.iterdir() if not (_OUR_FILES.fullmatch(p.name) or p.name == ".DS_Store"))
     if foreign:   # --overwrite replaces the whole folder: a file put there since would go with it
         raise InputError(f"holds {foreign[0]}, which senerf-render did not write; --overwrite replaces only its own "
                          f"outputs: move it or choose another --out", file=out)

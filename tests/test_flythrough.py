@@ -686,7 +686,11 @@ def test_overwrite_keeps_files_put_into_an_earlier_render_and_an_interrupt_betwe
         write_frames(out, frames, {"senerf_render": "y"}, fps=10.0, overwrite=True)
     assert (out / "notes.txt").read_text() == "keep"
     (out / "notes.txt").unlink()
-    (out / ".DS_Store").write_text("")   # hidden files are not the user's work
+    (out / ".notes.md").write_text("keep")   # a hidden file of the user's is theirs too (a review)
+    with pytest.raises(InputError, match="holds .notes.md, which senerf-render did not write"):
+        write_frames(out, frames, {"senerf_render": "y"}, fps=10.0, overwrite=True)
+    (out / ".notes.md").unlink()
+    (out / ".DS_Store").write_text("")   # the file manager's: not the user's work
     real_rename = Path.rename
 
     def interrupted_second_rename(self, target):

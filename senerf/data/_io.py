@@ -271,6 +271,8 @@ def read_rgba(path: Path, field: str, file: Path | None = None) -> np.ndarray:
         msg = f"cannot decode image {path} ({type(exc).__name__}: {exc})".splitlines()[0]
         raise InputError(msg, file=file, field=field) from None
     img = np.asarray(img)
+    if img.dtype.byteorder not in ("=", "|"):   # Pillow's I;16B: big-endian samples, as native ones
+        img = img.astype(img.dtype.newbyteorder("="))
     if img.ndim == 2:
         img = img[..., None]
     if img.ndim != 3 or img.shape[2] not in (1, 2, 3, 4) or img.shape[0] < 1 or img.shape[1] < 1:
@@ -283,9 +285,10 @@ def read_rgba(path: Path, field: str, file: Path | None = None) -> np.ndarray:
         out *= np.float32(scale)
     elif not np.all(np.isfinite(out)):
         raise InputError(f"image {path} contains NaN or inf", file=file, field=field)
-    elif out.size and (out.min() < 0.0 or out.max() > 1.0):   # float samples are taken as they are: in [0, 1]
-        raise InputError(f"image {path} holds float samples in [{out.min():g}, {out.max():g}]; expected [0, 1]",
-                         file=file, field=field)
+    elif out.size and (out.min() < 0.0 or out.max() > 1.0):   # HDR, or a resampling's overshoot: clipped, said
+        warnings.warn(f"{file}: {field}: image {path} holds float samples in [{out.min():g}, {out.max():g}]; "
+                      f"clipped to [0, 1]", stacklevel=3)
+        np.clip(out, 0.0, 1.0, out=out)
     c = out.shape[2]
     if c == 1:
         out = np.repeat(out, 3, axis=2)

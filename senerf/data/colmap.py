@@ -360,8 +360,8 @@ def _depth_bounds(c2w: np.ndarray, image_ids: list, points: tuple, file: Path) -
         z = (pts - pose[:3, 3]) @ pose[:3, 2]
         z = z[z > 0]
         if z.size == 0:
-            raise InputError(f"image {image_id} sees no 3D point in front of it; its depth bounds (forward-facing "
-                             f"fits take them from the points) are unknown", file=file, field=f"image {image_id}")
+            raise InputError("sees no 3D point in front of it; its depth bounds (forward-facing fits take them from "
+                             "the points) are unknown", file=file, field=f"image {image_id}")
         bounds[k] = np.percentile(z, 0.1), np.percentile(z, 99.9)
     return bounds
 
@@ -481,7 +481,8 @@ def load_colmap(root: Path, downscale: float = 1.0, bd_factor: float | None = 0.
         raise InputError("a forward-facing capture is fitted in one NDC frustum, built from one camera; these "
                          f"images use {len(set(intr))} different cameras", file=cam_file)
     points_file = _model_file(folder, "points3D")
-    bounds = _depth_bounds(c2w, [im.image_id for im in images], read_points3d(points_file), points_file)
+    bounds = _depth_bounds(c2w, [im.image_id for im in images], read_points3d(points_file),
+                           points_file)
     c2w, bounds = normalise_forward_facing(c2w, bounds, bd_factor, recenter)
     common["source_files"] += (points_file,)   # its depth bounds set the scene's scale
     return Scene(c2w=c2w, splits=splits, kind="forward_facing", near=float(bounds.min()), far=float(bounds.max()), **common)

@@ -212,15 +212,19 @@ def load_llff(root: Path, downscale: float = 1.0, bd_factor: float | None = 0.75
                          "recentring); are the poses in a sane unit?", file=file, field=f"row {i}")
     from .colmap import view_spread   # here: colmap imports this module
 
-    full_k = [Intrinsics(f, f, 0.5 * hwf[0, 1], 0.5 * hwf[0, 0], int(round(hwf[0, 1])), int(round(hwf[0, 0])))
-              for f in hwf[:, 2]]
+    size = max(1, int(round(hwf[0, 1]))), max(1, int(round(hwf[0, 0])))   # a size under 1 is refused below
+    full_k = [Intrinsics(f, f, 0.5 * size[0], 0.5 * size[1], *size) for f in hwf[:, 2]]
     _, ray_deg, _ = view_spread(c2w, full_k)
     if not ray_deg < 90.0:   # NDC holds the half-space in front of the mean camera only (as COLMAP's check)
         axes = c2w[:, :3, 2] @ (c2w[:, :3, 2].sum(axis=0) / max(np.linalg.norm(c2w[:, :3, 2].sum(axis=0)), 1e-12))
         i = int(np.argmin(axes))
+        from .colmap import colmap_model_folder
+
+        hint = (" (the cameras surround the scene; this folder also holds a COLMAP model, which senerf fits as an "
+                "object scene: move poses_bounds.npy aside)" if colmap_model_folder(root) is not None else "")
         raise InputError(f"some rays look {ray_deg:.0f} degrees away from the cameras' mean direction; a "
-                         f"forward-facing (NDC) fit needs every ray within 90 (row {i}'s camera turns furthest)",
-                         file=file, field=f"row {i}")
+                         f"forward-facing (NDC) fit needs every ray within 90 (row {i}'s camera turns furthest)"
+                         + hint, file=file, field=f"row {i}")
     offset = np.abs(c2w[:, :3, 3]).max(axis=1)   # from the mean camera, after normalising
     if not offset.max() <= MAX_DEPTH_RANGE * bounds.max():   # one NDC frustum cannot hold such a spread
         i = int(np.argmax(offset))

@@ -12,7 +12,8 @@ import numpy as np
 
 from ._util import float_dtype
 from .poses import POSE_ATOL, look_at, validate_rigid
-from .spherical import closest_point_to_axes, default_up, pose_from_spherical, _spherical_angles, spherical_from_pose
+from .spherical import _spherical_angles, closest_point_to_axes, default_up, pose_from_spherical
+from .spherical import spherical_from_pose  # noqa: F401  (the docstrings' examples use it)
 
 __all__ = ["orbit_path", "spiral_path", "spiral_focus_depth"]
 

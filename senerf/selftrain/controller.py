@@ -578,7 +578,8 @@ def _load_teacher(path: Path, model, cfg_train, settings: dict, device):
 
 def run_selftraining(scene, train_idx, test_idx, model, train_cfg, cfg: SelfTrainConfig, out_dir,
                      student_cfg=None, command: list | None = None, extra_config: dict | None = None,
-                     progress: bool = True, echo: Callable[[str], None] = print) -> dict:
+                     progress: bool = True, echo: Callable[[str], None] = print,
+                     scene_files: dict | None = None) -> dict:
     """Baseline teacher + ``cfg.iterations`` self-training iterations, with outputs and resume.
 
     Args:
@@ -592,6 +593,8 @@ def run_selftraining(scene, train_idx, test_idx, model, train_cfg, cfg: SelfTrai
         command: argv recorded in ``metrics.json``.
         extra_config: more settings to record under ``config`` (e.g. the CLI's preset).
         progress: tqdm bars; echo: where one-line status messages go.
+        scene_files: the scene files' digests (:func:`senerf.data.scene_file_digests` of the files the run reads)
+            when the caller has them (senerf-fit, from its run.json); computed here otherwise.
     Returns:
         the ``metrics.json`` dict (DESIGN.md contract).
 
@@ -620,7 +623,8 @@ def run_selftraining(scene, train_idx, test_idx, model, train_cfg, cfg: SelfTrai
     teacher_path = ckpt_dir / "teacher.pt"
     metrics_path = out / "metrics.json"
     files_record = ckpt_dir / _FILES_RECORD
-    files_now = _scene_files_now(scene, train_idx, test_idx, cfg.reliability == "oracle")
+    files_now = (scene_files if scene_files is not None else
+                 _scene_files_now(scene, train_idx, test_idx, cfg.reliability == "oracle"))
     teacher, occupancy, start = None, None, 0
     seconds_before = 0.0
     if teacher_path.exists():

@@ -395,6 +395,7 @@ def choose_model(scene, train_idx, overrides: Mapping[str, Any] | None = None,
     fov_y = math.degrees(2 * math.atan(0.5 * H / intr.fy))
     chosen: dict[str, Any] = {}
     why: dict[str, str] = {}
+    box_width = None   # the fitted box's width, when it is the chosen one (not NDC's, not --aabb's)
 
     if scene.kind == "forward_facing":
         near = scene.near if scene.near is not None else 1.0
@@ -429,18 +430,7 @@ def choose_model(scene, train_idx, overrides: Mapping[str, Any] | None = None,
                        f"(camera distance {dist:.4g} x tan(fov/2) x 1.05)")
         why["near"] = "per-ray near/far from the ray-box intersection"
         why["occupancy_resolution"] = "64^3 occupancy grid skips empty space"
-        if 2 * half < 1.0:  # density is per world unit: a box s < 1 unit wide starts 1/s times denser
-            chosen["density_shift"] = chosen.get("density_shift", 0.0) - math.log(2 * half)
-        elif 2 * half > DENSITY_PLATEAU_WIDTH:
-            # and a box s > 4 units wide starts s/4 times more opaque, while the grid's absolute threshold drops
-            # content it has learnt (a scene at 10x its unit: 6.5 dB against 15.2): densities and the threshold
-            # are scaled back to a 4-unit box (boxes 1-4 units wide, lego's 3 included, are as measured)
-            scale = 2 * half / DENSITY_PLATEAU_WIDTH
-            field_shift = 0.0 if overrides.get("field") == "nerf" else math.log(scale)   # NeRF has no shift
-            chosen["density_shift"] = chosen.get("density_shift", 0.0) - field_shift
-            chosen["occupancy_threshold"] = ModelConfig.occupancy_threshold / scale
-            why["aabb"] += (f"; densities and the occupancy threshold scaled by 1/{scale:.3g} for a box "
-                            f"{2 * half:.3g} units wide")
+        box_width = None if "aabb" in overrides else 2 * half   # with --aabb: the user's box, below
         extent_px = 2 * half / dist * intr.fx  # the box's width in pixels at the centre's distance
         chosen["multires"] = (1, 2)
     res = _plane_resolution(max(H, W), extent_px)
@@ -472,6 +462,13 @@ def choose_model(scene, train_idx, overrides: Mapping[str, Any] | None = None,
             if key in overrides:
                 raise InputError(f"{key} {nerf_refusal()}", field="overrides")
     cfg_values = {**chosen, **overrides}
+    if not cfg_values.get("ndc"):
+        if box_width is None:
+            try:
+                box_width = float(np.ptp(np.asarray(cfg_values["aabb"], dtype=np.float64), axis=0).max())
+            except (TypeError, ValueError):   # a malformed aabb: ModelConfig names it below
+                box_width = 1.0
+        _scale_densities(cfg_values, overrides, box_width, why)
     try:
         cfg = ModelConfig(**cfg_values)
     except TypeError as exc:  # pragma: no cover - names are checked above
@@ -493,7 +490,33 @@ def choose_model(scene, train_idx, overrides: Mapping[str, Any] | None = None,
     for key in sorted(set(overrides) - {"field", "ndc", "aabb", "near", "resolution", "n_samples",
                                          "occupancy_resolution", "train_background", "view_dependent"}):
         echo(f"model: {key} = {getattr(cfg, key)!r} (override)")
+    if "density_scale" in why:
+        echo(f"model: {why['density_scale']}")
     return cfg
+
+
+def _scale_densities(values: dict, overrides: dict, width: float, why: dict) -> None:
+    """Density is per world unit: a box ``width`` < 1 unit wide starts ``1/width`` times denser, and one wider
+    than :data:`DENSITY_PLATEAU_WIDTH` starts ``width/4`` times more opaque while the grid's absolute threshold
+    drops content it has learnt (a scene at 10x its unit: 6.5 dB against 15.2).  K-Planes' ``density_shift`` (the
+    NeRF field has none) and, for wide boxes, the occupancy threshold are scaled back into 1-4 units; boxes 1-4
+    units wide, lego's 3.02 included, are fitted as measured.  Values given in ``overrides`` are kept."""
+    if not (width > 0 and math.isfinite(width)):
+        return
+    nerf = values.get("field") == "nerf"
+    if width < 1.0:
+        if "density_shift" not in overrides:
+            values["density_shift"] = values.get("density_shift", 0.0) - math.log(width)
+        return
+    if width <= DENSITY_PLATEAU_WIDTH:
+        return
+    scale = width / DENSITY_PLATEAU_WIDTH
+    if "density_shift" not in overrides and not nerf:
+        values["density_shift"] = values.get("density_shift", 0.0) - math.log(scale)
+    if "occupancy_threshold" not in overrides:
+        values["occupancy_threshold"] = ModelConfig.occupancy_threshold / scale
+    what = "the occupancy threshold" if nerf else "initial densities and the occupancy threshold"
+    why["density_scale"] = f"{what} scaled by 1/{scale:.3g} for a box {width:.3g} units wide (density is per unit)"
 
 
 def build_field(model: ModelConfig, seed: int = 0, steps: int | None = None):

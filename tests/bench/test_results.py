@@ -96,3 +96,17 @@ def test_latest_attempt_wins():
     # the result a user gets: the last attempt's line at the run's last iteration (K = 2), not its teacher
     (final,) = final_ok_lines(old + new + failed)
     assert final["iteration"] == final["iterations"] == 2 and final["psnr"] == new[-1]["psnr"]
+
+
+def test_an_ok_line_whose_memory_or_wall_time_was_not_measured_is_kept(tmp_path):
+    # execute.py writes peak_memory_mib / run_seconds as null when it cannot read them; the first version of the
+    # type check dropped such finished runs, so every `run` redid them (a review, so at 3cbad99)
+    path = tmp_path / "r.jsonl"
+    good = dict(schema=1, run_key="k", attempt="a", status="ok", timestamp="t", scene="s", protocol="p",
+                resolution=[8, 8], views=[0, 1], n_views=2, method="baseline", preset="fast", seed=0, iterations=0,
+                iteration=0, psnr=20.0, ssim=0.5, lpips="unavailable", avg="unavailable", seconds=1.0,
+                seconds_cumulative=1.0, run_seconds=None, peak_memory_mib=None, commit="c", machine={},
+                fit_command=[], bench_command=[])
+    path.write_text(json.dumps(good) + "\n" + json.dumps({**good, "run_key": "k2", "run_seconds": "x"}) + "\n")
+    records, bad = load_results(path)
+    assert [r["run_key"] for r in records] == ["k"] and bad == 1

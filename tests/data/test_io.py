@@ -152,13 +152,22 @@ def test_cmyk_and_transparent_palette_images_are_read_as_rgb_and_rgba(tmp_path):
     assert np.array_equal(rgb[:, 4:], np.broadcast_to(colours, (6, 4, 3)))
 
 
-def test_float_images_outside_the_unit_range_and_unread_modes_are_refused(tmp_path):
+def test_float_images_outside_the_unit_range_are_clipped_with_a_warning_and_unread_modes_refused(tmp_path):
+    # float samples were taken as they are (a 0-255 float TIFF trained as values up to 253; so at 2e4108c)
     from PIL import Image
 
     Image.fromarray(np.full((4, 4), 200.0, np.float32), "F").save(tmp_path / "f.tif")
-    with pytest.raises(InputError, match=r"holds float samples in \[200, 200\]; expected \[0, 1\]") as info:
-        _io.read_image(tmp_path / "f.tif", "frames[1].file_path", tmp_path / "t.json")
-    assert info.value.field == "frames[1].file_path"
+    with pytest.warns(UserWarning, match=r"frames\[1\].file_path: image .*f.tif holds float samples in \[200, 200\]; "
+                                         r"clipped to \[0, 1\]"):
+        rgb, _ = _io.read_image(tmp_path / "f.tif", "frames[1].file_path", tmp_path / "t.json")
+    assert rgb.max() == 1.0
+    # big-endian 16-bit grey (Pillow's I;16B) was refused as "unsupported sample type >u2" (a review)
+    Image.frombytes("I;16B", (3, 2), (np.arange(6, dtype=">u2") * 10000).tobytes()).save(tmp_path / "b.tif")
+    with Image.open(tmp_path / "b.tif") as im:   # the samples as Pillow's own pixel access gives them
+        assert im.mode == "I;16B"
+        samples = np.array([im.getpixel((x, y)) for y in range(2) for x in range(3)], np.float64)
+    grey, _ = _io.read_image(tmp_path / "b.tif", "f")
+    assert samples.max() > 255 and np.allclose(grey[..., 0].ravel(), samples / 65535.0, atol=1e-6)
     Image.fromarray(np.full((4, 4), 0.5, np.float32), "F").save(tmp_path / "h.tif")
     assert np.allclose(_io.read_image(tmp_path / "h.tif", "f")[0], 0.5)   # in range: read as it is
     Image.new("I", (4, 4), 7).save(tmp_path / "i.tif")

@@ -159,3 +159,25 @@ def test_cameras_looking_away_from_the_others_are_refused(tmp_path, writers):
     with pytest.raises(InputError, match="some rays look .* degrees away from the cameras' mean direction") as info:
         load_llff(writers.llff(tmp_path / "back", rows), downscale=2)
     assert info.value.field == "row 3"
+
+
+def test_a_surrounding_capture_with_a_colmap_model_beside_is_pointed_to_it_and_tiny_sizes_are_not_a_traceback(
+        tmp_path, writers):
+    # mip-NeRF 360 folders ship poses_bounds.npy beside sparse/0: the refusal now says how to fit the capture
+    # (a review); and a width under 0.5 pixels built an Intrinsics of width 0 and raised a traceback (so at 3cbad99)
+    from senerf.errors import InputError
+
+    rows = writers.llff_rows()
+    m = rows[3, :15].reshape(3, 5)
+    m[:, 1], m[:, 2] = (-1.0, 0.0, 0.0), (0.0, 0.0, 1.0)   # row 3 looks back
+    rows[3, :15] = m.reshape(-1)
+    root = writers.llff(tmp_path / "360", rows)
+    (root / "sparse" / "0").mkdir(parents=True)
+    (root / "sparse" / "0" / "cameras.txt").write_text("")
+    with pytest.raises(InputError, match="move poses_bounds.npy aside") as info:
+        load_llff(root, downscale=2)
+    assert info.value.field == "row 3"
+    rows = writers.llff_rows(W=0.3)
+    with pytest.raises(InputError) as info:   # one line, exit 2: not a ValueError from Intrinsics
+        load_llff(writers.llff(tmp_path / "thin", rows), downscale=2)
+    assert "images are" in str(info.value)

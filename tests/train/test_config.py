@@ -266,6 +266,14 @@ def test_a_wide_box_scales_densities_and_the_occupancy_threshold_to_a_four_unit_
     small = choose_model(_scaled(_scene(), 0.1), np.arange(6), echo=lambda s: None)
     w = float(np.ptp(np.asarray(small.aabb), axis=0).max())
     assert small.density_shift == pytest.approx(-math.log(w), rel=1e-3) and small.occupancy_threshold == 0.1
+    # the box fitted is the one scaled for: an --aabb override's, not the cameras' (a review, so at 3cbad99)
+    cube = lambda half: ((-half,) * 3, (half,) * 3)   # noqa: E731
+    own = choose_model(_scaled(_scene(), 10.0), np.arange(6), {"aabb": cube(1.5)}, echo=lambda s: None)
+    assert own.density_shift == 0.0 and own.occupancy_threshold == 0.1
+    wide = choose_model(_scene(), np.arange(6), {"aabb": cube(50.0)}, echo=lambda s: None)
+    assert wide.density_shift == pytest.approx(-math.log(25.0)) and wide.occupancy_threshold == pytest.approx(0.004)
+    given = choose_model(_scene(), np.arange(6), {"aabb": cube(50.0), "density_shift": 0.5}, echo=lambda s: None)
+    assert given.density_shift == 0.5 and given.occupancy_threshold == pytest.approx(0.004)   # an override is kept
 
 
 def test_the_grid_keeps_a_fog_of_one_optical_depth_at_any_scale():
