@@ -298,17 +298,6 @@ _RUN_KEYS = frozenset({"scene_dir", "format", "protocol", "train", "model"})
 _OUTPUT_NAMES = ("checkpoints", "metrics.json", "summary.png", "render", _RUN_FILE)
 
 
-def _scene_files(scene, train_idx, test_idx, oracle: bool) -> dict:
-    """:func:`senerf.data.scene_file_digests` of the files the run reads: the poses and cameras, the
-    training and test views' images, and with oracle reliability every view's (the held-out ones label it;
-    decided by the flag, not by whether this call self-trains, so ``--iterations 0`` then 1 is one run)."""
-    import numpy as np
-
-    from senerf.data import scene_file_digests
-
-    return scene_file_digests(scene, None if oracle else np.union1d(train_idx, test_idx))
-
-
 def _files_changed(old: dict, identity: dict) -> str:
     """One line saying which of the scene's files changed since ``old`` was recorded, or ``''`` (also when
     ``old`` predates the record: a run.json written before senerf-fit hashed the files cannot tell)."""
@@ -533,7 +522,9 @@ def _run(args, argv) -> int:
     # empty_opacity is always part of the fingerprint (None when not given), as before the other overrides
     identity["selftrain_flags"] = {**_selftrain_flags(args), "empty_opacity": args.empty_opacity,
                                    **_selftrain_overrides(args)}
-    identity["scene_files"] = _scene_files(scene, train_idx, test_idx, args.reliability == "oracle")
+    from senerf.data import run_file_digests
+
+    identity["scene_files"] = run_file_digests(scene, train_idx, test_idx, oracle=args.reliability == "oracle")
     _prepare_out(out, identity, args.overwrite)
     print(f"{PROG}: writing to {out}")
 

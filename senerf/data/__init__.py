@@ -12,6 +12,7 @@ Public API::
     COVERAGE_WARN
                                             lens undistortion, applied by the JSON loaders (OPENCV, OPENCV_FISHEYE)
     scene_file_digests(scene, views=None) -> {name: sha256}   what the scene's files held (resume checks)
+    run_file_digests(scene, train_idx, test_idx, oracle=False, missing_ok=False)   those of the files a run reads
     changed_files(then, now) -> [line]      how two such records differ, one line per file
     view_names(scene, views) -> [name]      each view's image file, relative to the scene folder
     EXTREME_VIEWS, INFONERF4_VIEWS, PROTOCOLS
@@ -26,13 +27,14 @@ from .colmap import load_colmap
 from .fewshot import EXTREME_VIEWS, INFONERF4_VIEWS, PROTOCOLS, fewshot_split
 from .llff import load_llff, recenter_poses
 from .load import detect_format, load_scene, scene_root
-from .scene import Scene, changed_files, scene_file_digests, view_names
+from .scene import Scene, changed_files, run_file_digests, scene_file_digests, view_names
 from .undistort import (COVERAGE_WARN, Distortion, distort_pixels, photo_coverage, undistort_image,
                         undistorted_intrinsics, undistortion_maps)
 
 __all__ = [
     "Scene",
     "scene_file_digests",
+    "run_file_digests",
     "changed_files",
     "view_names",
     "load_scene",

@@ -20,7 +20,8 @@ import numpy as np
 from ..errors import InputError
 from ..geometry import Intrinsics
 
-__all__ = ["Scene", "SPLIT_NAMES", "as_background", "scene_file_digests", "changed_files", "view_names"]
+__all__ = ["Scene", "SPLIT_NAMES", "as_background", "scene_file_digests", "run_file_digests", "changed_files",
+           "view_names"]
 
 #: The split names every :class:`Scene` carries (possibly empty).
 SPLIT_NAMES = ("train", "val", "test")
@@ -214,6 +215,28 @@ def scene_file_digests(scene: Scene, views=None) -> dict:
         except OSError as exc:
             raise InputError(f"cannot be read any more ({exc.strerror or exc})", file=path) from None
     return dict(sorted(out.items()))
+
+
+def run_file_digests(scene: Scene, train_idx, test_idx, oracle: bool = False, missing_ok: bool = False) -> dict | None:
+    """:func:`scene_file_digests` of the files a run reads: the poses and cameras, the training and test views'
+    photos, and with ``oracle`` (held-out views label the pseudo views) every view's.  The same record for
+    senerf-fit's ``run.json`` and ``run_selftraining``'s ``scene_files.json``.
+
+    Args:
+        scene: a loaded :class:`Scene`; train_idx, test_idx: int view indices ``(m,)``, ``(t,)``.
+        oracle: the run's reliability is the oracle (decided by the setting, not by whether a call self-trains,
+            so ``--iterations 0`` then 1 is one run).
+        missing_ok: return None when the files are not all on disk (a scene built in memory: nothing to compare)
+            instead of raising.
+
+    Raises:
+        InputError: a file can no longer be read (named), unless ``missing_ok``.
+    """
+    views = np.arange(scene.n_images) if oracle else np.union1d(np.asarray(train_idx), np.asarray(test_idx))
+    if missing_ok and not all(Path(f).is_file() for f in (*scene.source_files,
+                                                          *(scene.image_paths[int(i)] for i in views))):
+        return None
+    return scene_file_digests(scene, views)
 
 
 def changed_files(then: dict, now: dict) -> list[str]:

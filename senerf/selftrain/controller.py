@@ -41,7 +41,7 @@ import numpy as np
 import torch
 
 from .. import geometry
-from ..data import changed_files, scene_file_digests
+from ..data import changed_files, run_file_digests
 from ..errors import InputError
 from ..train import (atomic_write_text, build_field, camera_rays, config_to_dict, differences_text, eval_images,
                      evaluate, finished_metrics, iteration_row, load_checkpoint, load_state_keeping_box, make_occupancy,
@@ -530,17 +530,6 @@ def _check_settings(path: Path, state: dict, settings: dict) -> None:
         raise InputError(f"output folder holds a run with different settings; {hint}", file=path)
 
 
-def _scene_files_now(scene, train_idx: np.ndarray, test_idx: np.ndarray, oracle: bool) -> dict | None:
-    """:func:`senerf.data.scene_file_digests` of the files the run reads (the poses and cameras, the training
-    and test views' images, every view's with oracle reliability), or None when they are not all files on disk
-    (a scene built in memory): then there is nothing to compare."""
-    views = np.arange(scene.n_images) if oracle else np.union1d(train_idx, test_idx)
-    files = list(scene.source_files) + [scene.image_paths[int(i)] for i in views]
-    if not all(Path(f).is_file() for f in files):
-        return None
-    return scene_file_digests(scene, views)
-
-
 def _check_scene_files(record: Path, now: dict | None) -> None:
     """Refuse a run folder whose run read other bytes from the scene's files than ``now`` (named, as
     senerf-fit names them); a folder without ``record`` (made before it was written) cannot tell."""
@@ -624,7 +613,7 @@ def run_selftraining(scene, train_idx, test_idx, model, train_cfg, cfg: SelfTrai
     metrics_path = out / "metrics.json"
     files_record = ckpt_dir / _FILES_RECORD
     files_now = (scene_files if scene_files is not None else
-                 _scene_files_now(scene, train_idx, test_idx, cfg.reliability == "oracle"))
+                 run_file_digests(scene, train_idx, test_idx, oracle=cfg.reliability == "oracle", missing_ok=True))
     teacher, occupancy, start = None, None, 0
     seconds_before = 0.0
     if teacher_path.exists():

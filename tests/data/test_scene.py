@@ -119,6 +119,25 @@ def test_scene_file_digests_are_sha256_of_the_bytes_named_relative_to_the_root(t
         scene_file_digests(s, views=[0])
 
 
+def test_run_file_digests_takes_the_runs_views_and_all_with_the_oracle(tmp_path):
+    from senerf.data import run_file_digests
+
+    for name, data in (("poses.json", b"abc"), ("0.png", b""), ("1.png", b"abc"), ("2.png", b"x")):
+        (tmp_path / name).write_bytes(data)
+    k = Intrinsics(2.0, 2.0, 1.0, 1.0, 2, 2)
+    s = _scene(root=tmp_path, rgb=np.zeros((3, 2, 2, 3), np.float32), alpha=None, intrinsics_all=(k,) * 3,
+               c2w=np.broadcast_to(np.eye(4), (3, 4, 4)).copy(),
+               image_paths=tuple(tmp_path / f"{i}.png" for i in range(3)), source_files=(tmp_path / "poses.json",))
+    # golden: sha256("abc") = ba7816bf..., sha256("") = e3b0c442...
+    assert run_file_digests(s, [0], [1]) == {"0.png": "e3b0c44298fc1c14", "1.png": "ba7816bf8f01cfea",
+                                              "poses.json": "ba7816bf8f01cfea"}
+    assert sorted(run_file_digests(s, [0], [1], oracle=True)) == ["0.png", "1.png", "2.png", "poses.json"]
+    (tmp_path / "2.png").unlink()   # photos not on disk: a scene built in memory has nothing to compare
+    assert run_file_digests(s, [0], [1], oracle=True, missing_ok=True) is None
+    with pytest.raises(InputError, match=r"2\.png: cannot be read any more"):
+        run_file_digests(s, [0], [1], oracle=True)
+
+
 def test_changed_files_names_every_difference():
     from senerf.data.scene import changed_files
 
