@@ -16,6 +16,7 @@ Exit status: 0 ok, 1 when some run failed (its line is in the results file; reru
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import os
 import shlex
@@ -145,9 +146,10 @@ def _cmd_run(args: argparse.Namespace, argv: list[str]) -> int:
         if not args.dry_run and not Path(s).is_dir():
             raise InputError("scene folder not found", file=s)
     check = all(Path(s).is_dir() for s in args.scenes)
-    specs = expand_specs([str(Path(s).resolve()) if Path(s).is_dir() else s for s in args.scenes],
-                         args.protocols, args.methods, args.presets, args.seeds, args.iterations, args.device,
-                         args.steps, check_scenes=check)
+    with _flags_named({"method": "--methods", "preset": "--presets", "protocol": "--protocols"}):
+        specs = expand_specs([str(Path(s).resolve()) if Path(s).is_dir() else s for s in args.scenes],
+                             args.protocols, args.methods, args.presets, args.seeds, args.iterations, args.device,
+                             args.steps, check_scenes=check)
     fit_command = tuple(shlex.split(args.fit_command)) if args.fit_command else None
     threads = args.threads
     if threads is None:   # one core per reserved CPU: concurrent fits must not oversubscribe a node
@@ -254,6 +256,18 @@ def _cmd_summarize(args: argparse.Namespace) -> int:
     return 0
 
 
+@contextlib.contextmanager
+def _flags_named(flags: dict):
+    """Re-raise the library's InputError for a setting (``method``) as one for the flag that gave it
+    (``--methods``): the same checks read results files, where the setting's name is the right one."""
+    try:
+        yield
+    except InputError as exc:
+        if exc.file is None and exc.field in flags:
+            raise InputError(exc.problem, field=flags[exc.field]) from None
+        raise
+
+
 def _not_an_input(target, flag: str, inputs) -> None:
     """Refuse writing ``target`` when it is one of the files read (the results file above all: a report written
     over it would lose every measured run)."""
@@ -358,7 +372,8 @@ def _cmd_angles(args: argparse.Namespace) -> int:
 
     output_file(args.out, "--out")
     _not_an_input(args.out, "--out", [args.results])
-    proto = parse_protocol(args.protocol)
+    with _flags_named({"protocol": "--protocol"}):
+        proto = parse_protocol(args.protocol)
     scene = load_scene(args.scene, downscale=proto.downscale)
     name = scene.name
     # baselines at iteration 0, self-training runs at their last iteration (their iteration 0 is a baseline)

@@ -330,3 +330,18 @@ def test_a_local_cuda_run_without_a_gpu_and_an_empty_grid_are_refused_before_any
     args[args.index("--protocols") + 1] = "llff3@504x378"   # an LLFF protocol: no Blender scene fits it
     assert main(args) == 2
     assert "--protocols: the grid of scenes" in capsys.readouterr().err
+
+
+def test_unknown_methods_presets_and_protocols_name_the_flag(blender_scene, fake_fit_command, tmp_path, capsys):
+    # they said "method: unknown method 'nosuch'", the setting's name, not the flag the user typed (so at 3cbad99)
+    for flag, value in (("--methods", "nosuch"), ("--presets", "nosuch"), ("--protocols", "nosuch@1")):
+        args = _run_args(blender_scene, tmp_path / "b", fake_fit_command)
+        at = args.index(flag) + 1
+        while at < len(args) and not args[at].startswith("--"):   # the flag's values, replaced by one bad one
+            del args[at]
+        args.insert(at, value)
+        assert main(args) == 2
+        assert capsys.readouterr().err.startswith(f"senerf-bench: error: {flag}: unknown ")
+    assert main(["angles", str(tmp_path / "r.jsonl"), "--scene", str(blender_scene), "--protocol", "bogus",
+                 "--out", str(tmp_path / "a.png")]) == 2
+    assert capsys.readouterr().err.startswith("senerf-bench: error: --protocol: unknown protocol")
