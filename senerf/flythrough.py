@@ -417,6 +417,15 @@ def write_frames(out: Path, frames: dict, record: dict, fps: float, overwrite: b
     return out
 
 
+def _missing_folders(folder: Path) -> list[Path]:
+    """``folder`` and its parents that do not exist yet, deepest first (what a write into it would create)."""
+    missing = []
+    while not folder.exists() and folder != folder.parent:
+        missing.append(folder)
+        folder = folder.parent
+    return missing
+
+
 def _temp_sibling(out: Path) -> Path:
     """A new hidden folder ``.NAME.PID.xxxxxxxx`` beside ``out`` (``out``'s parents created), holding
     :data:`_PARTIAL` so that :func:`recover_interrupted` knows it; :class:`InputError` if impossible."""
@@ -583,23 +592,33 @@ def _run(args, argv: list[str]) -> int:
                              field="--compare")
         teacher = with_iteration(run, 0, device, flag="--compare")
     _check_memory(intrinsics, renders=2 if args.compare else 1)
-    shutil.rmtree(_temp_sibling(out))   # the folder can be written: found out before rendering, not after
-    print(f"{PROG}: {run.scene.name}, iteration {run.iteration}{' and the teacher' if teacher else ''}, {path} "
-          f"path: {len(c2w)} frames at {intrinsics[0].width}x{intrinsics[0].height}")
-    frames = render_frames(run, c2w, intrinsics, device=device, progress=not args.quiet)
-    compare = None
-    if teacher is not None:
-        first = render_frames(teacher, c2w, intrinsics, device=device, progress=not args.quiet)
-        compare = side_by_side(first["rgb"], frames["rgb"], ("teacher", f"iteration {run.iteration}"))
-    record = dict(senerf_render=__version__, command=argv, run=str(run.folder.resolve()), iteration=run.iteration,
-                  compared_with=0 if compare is not None else None, path=path, fps=args.fps,
-                  convention="OpenCV camera-to-world (x right, y down, z forward), the "
-                  "scene's world frame; intrinsics fx, fy, cx, cy, width, height (pixel centres at i + 0.5)",
-                  intrinsics=[[k.fx, k.fy, k.cx, k.cy, k.width, k.height] for k in intrinsics],
-                  c2w=c2w.tolist())
-    written = write_frames(out, frames, record, args.fps, args.overwrite, compare=compare)
-    gifs = "rgb.gif, depth.gif and compare.gif" if compare is not None else "rgb.gif and depth.gif"
-    print(f"{PROG}: {len(c2w)} frames, {gifs} in {written}")
+    created = _missing_folders(out.parent)   # removed again unless the render lands (Ctrl-C, bad input)
+    try:
+        shutil.rmtree(_temp_sibling(out))   # the folder can be written: found out before rendering, not after
+        print(f"{PROG}: {run.scene.name}, iteration {run.iteration}{' and the teacher' if teacher else ''}, {path} "
+              f"path: {len(c2w)} frames at {intrinsics[0].width}x{intrinsics[0].height}")
+        frames = render_frames(run, c2w, intrinsics, device=device, progress=not args.quiet)
+        compare = None
+        if teacher is not None:
+            first = render_frames(teacher, c2w, intrinsics, device=device, progress=not args.quiet)
+            compare = side_by_side(first["rgb"], frames["rgb"], ("teacher", f"iteration {run.iteration}"))
+        record = dict(senerf_render=__version__, command=argv, run=str(run.folder.resolve()),
+                      iteration=run.iteration, compared_with=0 if compare is not None else None, path=path,
+                      fps=args.fps,
+                      convention="OpenCV camera-to-world (x right, y down, z forward), the "
+                      "scene's world frame; intrinsics fx, fy, cx, cy, width, height (pixel centres at i + 0.5)",
+                      intrinsics=[[k.fx, k.fy, k.cx, k.cy, k.width, k.height] for k in intrinsics],
+                      c2w=c2w.tolist())
+        written = write_frames(out, frames, record, args.fps, args.overwrite, compare=compare)
+        gifs = "rgb.gif, depth.gif and compare.gif" if compare is not None else "rgb.gif and depth.gif"
+        print(f"{PROG}: {len(c2w)} frames, {gifs} in {written}")
+    finally:
+        if not out.exists():
+            for folder in created:   # deepest first; one that holds anything stays
+                try:
+                    folder.rmdir()
+                except OSError:
+                    break
     return 0
 
 

@@ -713,3 +713,18 @@ def test_frame_rates_a_gif_cannot_hold_and_scales_beyond_64_are_refused_up_front
         assert main([str(runs.base), "--out", str(tmp_path / "x"), flag, value, "--quiet"]) == 2
         assert f"{flag}: expected a finite number" in _error(capsys)
     assert not (tmp_path / "x").exists()
+
+
+def test_an_interrupted_render_removes_the_folders_it_created_for_its_output(runs, tmp_path, capsys, monkeypatch):
+    # Ctrl-C / SIGTERM while rendering left --out's parents, created for it, behind (so at 5060b25)
+    import senerf.flythrough as fly
+
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(fly, "render_frames", interrupted)
+    (tmp_path / "kept").mkdir()
+    for out in (tmp_path / "a" / "b" / "out", tmp_path / "kept" / "c" / "out"):
+        assert main([str(runs.base), "--out", str(out), "--frames", "2", "--quiet"]) == 130
+        assert "interrupted" in capsys.readouterr().err
+    assert not (tmp_path / "a").exists() and (tmp_path / "kept").is_dir() and not (tmp_path / "kept" / "c").exists()
