@@ -196,6 +196,10 @@ def view_similarity(pseudo_features: np.ndarray, pseudo_z: np.ndarray, pseudo_op
         for start in range(0, idx.size, _SAMPLE_CHUNK):
             part = idx[start:start + _SAMPLE_CHUNK]
             out_j[part] = cosine_similarity(flat_src[part], bilinear_sample(features_j, uv_j[part]))
+        bad = ~np.isfinite(out_j)   # a NaN render or photo: no match there, so it cannot veto another view
+        if bad.any():
+            out_j[bad] = NO_MATCH
+            ok = ok & ~bad.reshape(ok.shape)
         valid[j] = ok
     similarity = per_view.max(axis=0)
     return ViewSimilarity(similarity=similarity, per_view=per_view, valid=valid, foreground=foreground)
@@ -238,8 +242,9 @@ def threshold_weights(similarity: np.ndarray, foreground: np.ndarray, kind: str,
     Args:
         similarity: (H, W) (or any shape) per-pixel max similarity.
         foreground: same shape, bool; background pixels get weight 0.
-        kind: 'adaptive' | 'fixed' (reliable iff ``similarity > tau``) | 'unified'
-            (``sigmoid(beta (similarity - center))``).
+        kind: 'adaptive' | 'fixed' (reliable iff ``similarity > tau``; 'adaptive' takes ``>= tau`` when the
+            quantile fell on a tie and ``>`` would keep no foreground pixel) | 'unified'
+            (``sigmoid(beta (similarity - center))``; a non-finite similarity weighs 0).
     Returns:
         float32 array of the same shape.
     """
@@ -251,8 +256,12 @@ def threshold_weights(similarity: np.ndarray, foreground: np.ndarray, kind: str,
         if tau is None:
             raise ValueError(f"threshold kind {kind!r} needs tau")
         w = (s > tau).astype(np.float64)
+        if kind == "adaptive" and fg.any() and not (w.astype(bool) & fg).any():
+            # the quantile fell on a tie (saturated similarities): the tied pixels are its top share
+            w = (s >= tau).astype(np.float64)
     elif kind == "unified":
-        w = 1.0 / (1.0 + np.exp(-beta * (s - center)))
+        with np.errstate(over="ignore", invalid="ignore"):
+            w = np.nan_to_num(1.0 / (1.0 + np.exp(-beta * (s - center))), nan=0.0)
     else:
         raise ValueError(f"unknown threshold kind {kind!r}; choose one of {THRESHOLD_KINDS}")
     return np.where(fg, w, 0.0).astype(np.float32)

@@ -246,3 +246,34 @@ def test_foreground_includes_opacity_exactly_at_the_threshold():
     res = view_similarity(feats, z, opacity, K, camera(0.0), feats[None], z[None], K, camera(0.0)[None],
                           opacity_threshold=0.25)
     assert res.foreground[0, 2] and res.foreground[0, 1]
+
+
+def test_a_nan_in_one_known_view_does_not_veto_the_others_and_weighs_nothing():
+    # max over views passed a NaN through: one corrupt known view vetoed pixels another confirmed, and the
+    # unified weighting gave NaN (a review, so at 48ad7a7). Expected: that view does not count there.
+    kf, kz, kc, pf, pz, opacity = _two_known_views_and_a_pseudo_view()
+    clean = view_similarity(pf, pz, opacity, K, camera(0.05), kf, kz, K, kc)
+    corrupt = kf.copy()
+    corrupt[0] = np.nan
+    got = view_similarity(pf, pz, opacity, K, camera(0.05), corrupt, kz, K, kc)
+    assert not got.valid[0].any() and np.all(got.per_view[0] == NO_MATCH)
+    only_second = np.where(clean.valid[1], clean.per_view[1], NO_MATCH)
+    assert np.array_equal(got.similarity, only_second) and np.isfinite(got.similarity).all()
+    s = np.array([[0.95, np.nan, 0.2]])
+    assert threshold_weights(s, np.ones_like(s, bool), "unified").tolist()[0][1] == 0.0
+
+
+def test_an_adaptive_quantile_on_a_tie_keeps_the_tied_pixels():
+    # saturated similarities put the (1 - alpha) quantile on a tie, and "> tau" kept no pixel at all, where the
+    # adaptive threshold exists to keep its top share (a review, so at 48ad7a7)
+    fg = np.ones((4, 4), bool)
+    flat = np.full((4, 4), 0.93)
+    tau = resolve_threshold("adaptive", flat[fg], alpha=0.15)
+    assert threshold_weights(flat, fg, "adaptive", tau=tau).mean() == 1.0
+    top = np.r_[np.linspace(0.2, 0.8, 80), np.ones(20)].reshape(10, 10)   # top 20 % saturated at 1.0
+    tau = resolve_threshold("adaptive", top.ravel(), alpha=0.15)
+    assert threshold_weights(top, np.ones_like(top, bool), "adaptive", tau=tau).mean() == pytest.approx(0.2)
+    spread = np.linspace(0.0, 1.0, 100).reshape(10, 10)   # no tie: "> tau" as before
+    tau = resolve_threshold("adaptive", spread.ravel(), alpha=0.15)
+    assert threshold_weights(spread, np.ones_like(spread, bool), "adaptive", tau=tau).mean() == pytest.approx(0.15)
+    assert threshold_weights(flat, fg, "fixed", tau=0.93).sum() == 0.0   # the fixed threshold stays strict
