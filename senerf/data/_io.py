@@ -227,11 +227,12 @@ def _read_pillow(path: Path) -> np.ndarray:
         return np.asarray(im)
 
 
-def read_rgba(path: Path, field: str, file: Path | None = None) -> np.ndarray:
+def read_rgba(path: Path, field: str, file: Path | None = None, clipped: list | None = None) -> np.ndarray:
     """Decode one image to float32 ``(H, W, 3)`` (no alpha) or ``(H, W, 4)`` straight RGBA in ``[0, 1]``.
 
     8-bit samples are divided by 255, 16-bit by 65535 (converted to float32 once).  Grey is expanded to
-    three equal channels; grey+alpha becomes RGBA.
+    three equal channels; grey+alpha becomes RGBA.  Float samples outside [0, 1] are clipped, with a warning, or
+    with a ``(file, field, what)`` entry appended to ``clipped`` when it is given (:func:`load_images` warns once).
 
     Raises:
         InputError: missing, unreadable or corrupt file, unsupported sample type or channel count, NaN/inf.
@@ -286,8 +287,11 @@ def read_rgba(path: Path, field: str, file: Path | None = None) -> np.ndarray:
     elif not np.all(np.isfinite(out)):
         raise InputError(f"image {path} contains NaN or inf", file=file, field=field)
     elif out.size and (out.min() < 0.0 or out.max() > 1.0):   # HDR, or a resampling's overshoot: clipped, said
-        warnings.warn(f"{file}: {field}: image {path} holds float samples in [{out.min():g}, {out.max():g}]; "
-                      f"clipped to [0, 1]", stacklevel=3)
+        what = f"image {path} holds float samples in [{out.min():g}, {out.max():g}]"
+        if clipped is None:
+            warnings.warn(f"{file}: {field}: {what}; clipped to [0, 1]", stacklevel=3)
+        else:   # load_images says it once for all its photos
+            clipped.append((file, field, what))
         np.clip(out, 0.0, 1.0, out=out)
     c = out.shape[2]
     if c == 1:
@@ -371,8 +375,9 @@ def load_images(paths, fields, file_of, downscale: float = 1.0, size: tuple[int,
     any_alpha = False
     opaque = []   # images without an alpha channel
     size0 = out_size = None
+    clipped: list = []
     for k, (path, field, file) in enumerate(zip(paths, fields, file_of)):
-        img = read_rgba(path, field, file)
+        img = read_rgba(path, field, file, clipped)
         if size0 is not None and img.shape[:2] != size0:
             raise InputError(
                 f"image {path} is {img.shape[1]}x{img.shape[0]} but {paths[0]} is {size0[1]}x{size0[0]} "
@@ -395,6 +400,10 @@ def load_images(paths, fields, file_of, downscale: float = 1.0, size: tuple[int,
             any_alpha = True
         else:
             opaque.append(k)
+    if clipped:   # one line for a scene of HDR photos, not one per photo
+        file, field, what = clipped[0]
+        more = f" (and {len(clipped) - 1} more of the {n} photos)" if len(clipped) > 1 else ""
+        warnings.warn(f"{file}: {field}: {what}{more}; clipped to [0, 1]", stacklevel=3)
     if any_alpha and opaque:   # an RGB photo among RGBA ones: its background is trained as part of the object
         k = opaque[0]
         warnings.warn(f"{file_of[k]}: {len(opaque)} of {n} photos have no alpha channel ({fields[k]}: "

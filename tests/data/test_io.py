@@ -231,3 +231,22 @@ def test_a_corrupt_16bit_png_is_one_error_and_nothing_else_on_stderr(tmp_path, c
     with pytest.raises(InputError, match="cannot decode image"):
         _io.read_image(path, "frames[0].file_path")
     assert capfd.readouterr().err == ""
+
+
+def test_a_scene_of_float_photos_outside_the_unit_range_warns_once(tmp_path):
+    # each photo warned on its own: a hundred lines for a hundred HDR photos (so at 287b5e3)
+    import warnings
+
+    from PIL import Image
+
+    paths = []
+    for i in range(3):
+        paths.append(tmp_path / f"{i}.tif")
+        Image.fromarray(np.full((4, 4), 2.0 + i, np.float32), "F").save(paths[-1])
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        rgb, _, _ = _io.load_images(paths, [f"frames[{i}].file_path" for i in range(3)], [tmp_path / "t.json"] * 3)
+    lines = [str(w.message) for w in caught]
+    assert len(lines) == 1 and "frames[0].file_path: image" in lines[0] and "[2, 2] (and 2 more of the 3 photos)" \
+        in lines[0] and lines[0].endswith("clipped to [0, 1]")
+    assert rgb.max() == 1.0
