@@ -470,9 +470,10 @@ def _run(args, argv) -> int:
         print(f"{PROG}: fitted as {scene.kind.replace('_', '-')}: camera axes within {axis:.1f} degrees of their "
               f"mean direction, rays within {ray:.1f} ({why})")
     if args.aabb and scene.kind == "forward_facing":   # the flag's box is in world units around the origin
-        raise InputError("a forward-facing scene is fitted in NDC, whose box is fixed ([-1.5, 1.5] x [-1.5, 1.5] x "
-                         "[-1, 1]); --aabb (a cube in world units) applies to object scenes", file=scene_dir,
-                         field="--aabb")
+        from senerf.train.config import ndc_box_text
+
+        raise InputError(f"a forward-facing scene is fitted in NDC, whose box is fixed ({ndc_box_text()}); --aabb "
+                         f"(a cube in world units) applies to object scenes", file=scene_dir, field="--aabb")
     model = choose_model(scene, train_idx, {**PRESETS[args.preset]["model"], **_model_overrides(args)})
     _check_model_fits(model, device)
     _check_test_views(scene, train_idx, test_idx, model, scene_dir)

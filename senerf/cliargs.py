@@ -125,16 +125,12 @@ def run_command(prog: str, body, interrupted: str) -> int:
     except KeyboardInterrupt:
         print(f"{prog}: interrupted ({interrupted})", file=sys.stderr)
         return 130
-    except OSError as exc:
-        if exc.errno not in _USER_ERRNOS or not exc.filename:
-            traceback.print_exc()
-            print(f"{prog}: internal error (please report it with the traceback above)", file=sys.stderr)
-            return 1
-        # a file or folder of the user's we may not read or search (or name): theirs to fix, one line
-        print(f"{prog}: error: {exc.filename}: {exc.strerror or exc}", file=sys.stderr)
-        return 2
-    except Exception:  # an internal error: keep the traceback for the bug report
-        traceback.print_exc()
+    except Exception as exc:
+        if isinstance(exc, OSError) and exc.errno in _USER_ERRNOS and exc.filename:
+            # a file or folder of the user's we may not read or search (or name): theirs to fix, one line
+            print(f"{prog}: error: {exc.filename}: {exc.strerror or exc}", file=sys.stderr)
+            return 2
+        traceback.print_exc()   # an internal error: keep the traceback for the bug report
         print(f"{prog}: internal error (please report it with the traceback above)", file=sys.stderr)
         return 1
     finally:

@@ -97,21 +97,16 @@ def _metric(value) -> float | str:
 
 
 def validate_line(line: dict) -> None:
-    """Raise ``ValueError`` naming the first field of an ``"ok"`` line that is missing or mistyped."""
+    """Raise ``ValueError`` naming the first field of an ``"ok"`` line that is missing or mistyped
+    (:func:`_mistyped`, which :func:`load_results` applies to the fields a line has)."""
     if line.get("status") != "ok":
         for name in ("run_key", "status", "error"):
             if not isinstance(line.get(name), str):
                 raise ValueError(f"failed line: {name}: missing or not a string")
         return
-    for name, types in REQUIRED_OK_FIELDS.items():
+    for name in REQUIRED_OK_FIELDS:
         if name not in line:
             raise ValueError(f"{name}: missing")
-        value = line[name]
-        if isinstance(value, bool) or not isinstance(value, types):
-            raise ValueError(f"{name}: {type(value).__name__} is not {'/'.join(t.__name__ for t in types)}")
-    for name in ("lpips", "avg"):
-        if isinstance(line[name], str) and line[name] != "unavailable":
-            raise ValueError(f"{name}: string must be 'unavailable', got {line[name]!r}")
     problem = _mistyped(line)
     if problem is not None:
         raise ValueError(problem)
@@ -135,6 +130,9 @@ def _mistyped(line: dict) -> str | None:
             continue
         if name in line and (isinstance(line[name], bool) or not isinstance(line[name], types)):
             return f"{name}: {type(line[name]).__name__} is not {'/'.join(t.__name__ for t in types)}"
+    for name in ("lpips", "avg"):
+        if isinstance(line.get(name), str) and line[name] != "unavailable":
+            return f"{name}: string must be 'unavailable', got {line[name]!r}"
     for name in ("psnr", "ssim"):
         if name in line and not math.isfinite(line[name]):
             return f"{name}: {line[name]!r} is not a finite number"

@@ -200,14 +200,14 @@ def _png_bit_depth(path: Path) -> int | None:
 _PILLOW_AS_IS = ("1", "L", "LA", "RGB", "RGBA", "I;16", "I;16B", "I;16L", "F")
 
 
-def _read_pillow(path: Path) -> np.ndarray:
+def _read_pillow(path: Path, field: str, file: Path) -> np.ndarray:
     """Decode with Pillow, as stored: grey, grey+alpha, RGB, RGBA, 16-bit grey or float; a palette image
     becomes RGBA when its palette has transparency (RGB otherwise), CMYK / YCbCr / premultiplied RGBa become
     RGB(A) (read as they are, CMYK's four channels would pass for RGBA).  The EXIF orientation tag is not applied:
     the pixels are read as stored, as COLMAP reads them to compute the poses.
 
     Raises:
-        InputError: a mode with no RGB reading (without file and field: the caller adds them).
+        InputError: a mode with no RGB reading, naming ``file`` and ``field``.
     """
     from PIL import Image
 
@@ -223,7 +223,7 @@ def _read_pillow(path: Path) -> np.ndarray:
             im = im.convert("LA")
         elif mode not in _PILLOW_AS_IS:
             raise InputError(f"image {path} has Pillow mode {mode!r}, which senerf does not read; save it as 8- or "
-                             f"16-bit RGB(A) or grey")
+                             f"16-bit RGB(A) or grey", file=file, field=field)
         return np.asarray(im)
 
 
@@ -258,17 +258,14 @@ def read_rgba(path: Path, field: str, file: Path | None = None, clipped: list | 
             if img.ndim == 3 and img.shape[2] in (3, 4):
                 img = img[..., [2, 1, 0, 3][: img.shape[2]]]  # BGR(A) -> RGB(A)
         elif path.suffix.lower() in _PILLOW_SUFFIXES:
-            img = _read_pillow(path)
+            img = _read_pillow(path, field, file)
         else:
             img = iio.imread(path)
-    except InputError as exc:   # a mode we do not read, said by _read_pillow
-        raise InputError(str(exc), file=file, field=field) from None
-    except OSError as exc:
-        if exc.errno is not None:   # the file itself: permissions, a name too long, ...
-            raise InputError(f"cannot read image {path} ({exc.strerror or exc})", file=file, field=field) from None
-        msg = f"cannot decode image {path} ({type(exc).__name__}: {exc})".splitlines()[0]
-        raise InputError(msg, file=file, field=field) from None
+    except InputError:
+        raise
     except Exception as exc:  # corrupt file: the decoders raise many different types
+        if isinstance(exc, OSError) and exc.errno is not None:   # the file itself: permissions, a long name, ...
+            raise InputError(f"cannot read image {path} ({exc.strerror or exc})", file=file, field=field) from None
         msg = f"cannot decode image {path} ({type(exc).__name__}: {exc})".splitlines()[0]
         raise InputError(msg, file=file, field=field) from None
     img = np.asarray(img)

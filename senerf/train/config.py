@@ -311,6 +311,15 @@ def json_ready(value):
     return value
 
 
+#: The box a forward-facing scene is fitted in, in NDC (x, y a little beyond the frustum's [-1, 1], z in [-1, 1]).
+NDC_AABB = ((-1.5, -1.5, -1.0), (1.5, 1.5, 1.0))
+
+
+def ndc_box_text() -> str:
+    """:data:`NDC_AABB` as ``[-1.5, 1.5] x [-1.5, 1.5] x [-1, 1]``."""
+    return " x ".join(f"[{lo:g}, {hi:g}]" for lo, hi in zip(*NDC_AABB))
+
+
 #: Boxes wider than this (world units) get their densities and occupancy threshold scaled to it (``choose_model``);
 #: lego's box (3.02 units) and the measured benchmark scenes lie between 1 and this, where nothing is scaled.
 DENSITY_PLATEAU_WIDTH = 4.0
@@ -395,14 +404,13 @@ def choose_model(scene, train_idx, overrides: Mapping[str, Any] | None = None,
     fov_y = math.degrees(2 * math.atan(0.5 * H / intr.fy))
     chosen: dict[str, Any] = {}
     why: dict[str, str] = {}
-    box_width = None   # the fitted box's width, when it is the chosen one (not NDC's, not --aabb's)
 
     if scene.kind == "forward_facing":
         near = scene.near if scene.near is not None else 1.0
-        chosen.update(ndc=True, ndc_near=float(0.75 * near), aabb=((-1.5, -1.5, -1.0), (1.5, 1.5, 1.0)),
-                      near=None, far=None, occupancy_resolution=0)
+        chosen.update(ndc=True, ndc_near=float(0.75 * near), aabb=NDC_AABB, near=None, far=None,
+                      occupancy_resolution=0)
         why["ndc"] = f"forward-facing scene: NDC with near plane {0.75 * near:.3g} (0.75 x dataset near)"
-        why["aabb"] = "NDC cube [-1.5,1.5]x[-1.5,1.5]x[-1,1]"
+        why["aabb"] = f"NDC cube {ndc_box_text()}"
         why["near"] = "NDC rays, t' in [0, 1]"
         why["occupancy_resolution"] = "no occupancy grid in NDC"
         extent_px = max(H, W)
@@ -430,7 +438,6 @@ def choose_model(scene, train_idx, overrides: Mapping[str, Any] | None = None,
                        f"(camera distance {dist:.4g} x tan(fov/2) x 1.05)")
         why["near"] = "per-ray near/far from the ray-box intersection"
         why["occupancy_resolution"] = "64^3 occupancy grid skips empty space"
-        box_width = None if "aabb" in overrides else 2 * half   # with --aabb: the user's box, below
         extent_px = 2 * half / dist * intr.fx  # the box's width in pixels at the centre's distance
         chosen["multires"] = (1, 2)
     res = _plane_resolution(max(H, W), extent_px)
@@ -462,13 +469,12 @@ def choose_model(scene, train_idx, overrides: Mapping[str, Any] | None = None,
             if key in overrides:
                 raise InputError(f"{key} {nerf_refusal()}", field="overrides")
     cfg_values = {**chosen, **overrides}
-    if not cfg_values.get("ndc"):
-        if box_width is None:
-            try:
-                box_width = float(np.ptp(np.asarray(cfg_values["aabb"], dtype=np.float64), axis=0).max())
-            except (TypeError, ValueError):   # a malformed aabb: ModelConfig names it below
-                box_width = 1.0
-        _scale_densities(cfg_values, overrides, box_width, why)
+    if not cfg_values.get("ndc"):   # the box fitted (chosen, or the overrides'), by its side along x
+        try:
+            width = float(cfg_values["aabb"][1][0]) - float(cfg_values["aabb"][0][0])
+        except (TypeError, ValueError, IndexError, KeyError):   # a malformed aabb: ModelConfig names it below
+            width = float("nan")
+        _scale_densities(cfg_values, overrides, width, why)
     try:
         cfg = ModelConfig(**cfg_values)
     except TypeError as exc:  # pragma: no cover - names are checked above

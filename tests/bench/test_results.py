@@ -53,6 +53,11 @@ def test_failed_line_and_validation_errors():
     del bad["machine"]
     with pytest.raises(ValueError, match="machine"):
         validate_line(bad)
+    # what the runner writes when it cannot read the fit's max RSS: valid, as load_results keeps it
+    validate_line({**good, "peak_memory_mib": None, "run_seconds": None})
+    for field, value in (("peak_memory_mib", "x"), ("psnr", None), ("views", [0.5])):
+        with pytest.raises(ValueError, match=field):
+            validate_line({**good, field: value})
 
 
 def test_append_load_tolerates_a_torn_line(tmp_path):
