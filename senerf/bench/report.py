@@ -73,6 +73,18 @@ def paper_rows(family: str, scene: str | None = None, method: str | None = None)
             and (method is None or r.method == method)]
 
 
+def _split_off_size(records: list[dict]) -> tuple[list[dict], list[dict]]:
+    """``(kept, off_size)``: the finished lines whose recorded ``resolution`` is not their protocol's ``[H, W]``
+    (a line edited or merged by hand; the runner refuses such fits) split off, so a table never averages two
+    resolutions under one protocol.  Lines without a resolution are kept."""
+    kept, off = [], []
+    for r in records:
+        res = r.get("resolution")
+        bad = r.get("status") == "ok" and res is not None and list(res) != list(parse_protocol(r["protocol"]).size)
+        (off if bad else kept).append(r)
+    return kept, off
+
+
 def make_report(records: list[dict], report_command: list[str], title: str = "Benchmarks") -> str:
     """The markdown section: one block per protocol, our results beside the paper's.
 
@@ -81,11 +93,15 @@ def make_report(records: list[dict], report_command: list[str], title: str = "Be
         report_command: argv of the command generating this report (stated in the header).
         title: section heading.
     """
+    records, off_size = _split_off_size(records)
     ok = latest_ok_lines(records)
     now = _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
     out = [f"## {title}", "", f"Generated {now} by `{shlex.join(report_command)}`.",
            "Figures are mean ± sample standard deviation over seeds (never the best run); `n=1` marks a "
            "single seed. Paper figures are copied from the publications, not re-measured.", ""]
+    if off_size:
+        keys = ", ".join(f"`{r['run_key']}`" for r in off_size[:3]) + (", ..." if len(off_size) > 3 else "")
+        out += [f"Left out: {len(off_size)} finished line(s) whose resolution is not their protocol's ({keys}).", ""]
     if not ok:
         return "\n".join(out + ["No finished runs in the results file.", ""])
     aggs = aggregate(records)

@@ -21,6 +21,8 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import warnings
+from collections import Counter
 from pathlib import Path
 
 
@@ -110,7 +112,25 @@ def load_scene(path, downscale: float = 1, background=None, kind: str | None = N
         scene = load_colmap(root, downscale=d, kind=kind)
     else:
         scene = {"blender": load_blender, "ngp": load_ngp, "llff": load_llff}[fmt](root, downscale=d)
+    _warn_odd_views(scene)
     if bg is None:
         return scene
     rgb = scene.composite(bg)
     return dataclasses.replace(scene, rgb=rgb, background=tuple(float(c) for c in bg))
+
+
+def _warn_odd_views(scene: Scene) -> None:
+    """Warn, once each, about what loads but is most likely a mistake: a principal point outside its image
+    (``cx`` given at another resolution, a typo) and one photo listed twice in a split (a duplicated frame,
+    which counts as two views)."""
+    for k, path in zip(scene.intrinsics_all, scene.image_paths):
+        if not (0.0 <= k.cx <= k.width and 0.0 <= k.cy <= k.height):
+            warnings.warn(f"{path}: cx, cy: the principal point ({k.cx:g}, {k.cy:g}) lies outside the "
+                          f"{k.width}x{k.height} image; check that cx, cy are in pixels at this size", stacklevel=3)
+            break
+    for split, idx in scene.splits.items():
+        twice = [(p, n) for p, n in Counter(scene.image_paths[i] for i in idx).items() if n > 1]
+        if twice:
+            warnings.warn(f"{twice[0][0]}: listed {twice[0][1]} times in the {split} split"
+                          + (f" ({len(twice) - 1} more photo(s) likewise)" if len(twice) > 1 else "")
+                          + "; each copy counts as a view", stacklevel=3)

@@ -155,6 +155,23 @@ def test_report_paper_rows_per_protocol():
     assert len({(r.family, r.scene, r.label) for r in PAPER_NUMBERS}) == len(PAPER_NUMBERS)
 
 
+def test_report_leaves_out_lines_of_another_resolution():
+    # before: a line recorded at 252x189 was averaged into the 504x378 protocol's row (the header said checked)
+    def line(key, seed, psnr, resolution):
+        return {"run_key": key, "attempt": "a", "status": "ok", "scene": "fern", "protocol": "llff3@504x378",
+                "method": "baseline", "preset": "fast", "seed": seed, "iterations": 0, "iteration": 0, "psnr": psnr,
+                "ssim": 0.5, "lpips": "unavailable", "avg": "unavailable", "seconds_cumulative": 60.0,
+                "peak_memory_mib": 900.0, "commit": "abc", "machine": {"cpu": "X"},
+                "timestamp": "2026-01-01T00:00", "bench_command": ["senerf-bench", "run"], "resolution": resolution}
+    text = make_report([line("k0", 0, 17.0, [378, 504]), line("k1", 1, 19.0, [378, 504]),
+                        line("k2", 2, 30.0, [189, 252]), line("k3", 3, 18.0, None)],
+                       ["senerf-bench", "report", "r.jsonl"])
+    assert "Left out: 1 finished line(s) whose resolution is not their protocol's (`k2`)." in text
+    row = next(ln for ln in text.splitlines() if ln.startswith("| fern | baseline | fast | 0 |"))
+    assert "| 3 | 18.00 ± 1.00 |" in row, row          # seeds 0, 1 and the unrecorded 3; not the 30 dB line
+    assert "Left out" not in make_report([line("k0", 0, 17.0, [378, 504])], ["r"])
+
+
 def _one_error_line(capsys) -> str:
     """The single ``senerf-bench: error:`` line on stderr (no traceback, no usage)."""
     err = capsys.readouterr().err

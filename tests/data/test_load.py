@@ -436,3 +436,28 @@ def test_16bit_rgb_png_survives_loader(tmp_path, writers):
         scene = load_scene(root)
     np.testing.assert_allclose(scene.rgb[0], img / 65535.0, atol=1e-7)
     assert math.isclose(float(scene.alpha[0].min()), 1.0)  # frame without alpha is opaque, r_1 keeps its own
+
+
+def test_principal_point_outside_the_image_warns(tmp_path, writers):
+    # before: cx given at another resolution (or mistyped) loaded silently and trained to nothing
+    root = writers.ngp(tmp_path / "n", meta_extra={"cx": 40.0})
+    with pytest.warns(UserWarning, match=r"f_0\.png: cx, cy: the principal point \(40, 2\.5\) lies outside the "
+                                         r"4x4 image") as caught:
+        load_scene(root)
+    assert len([w for w in caught if "principal point" in str(w.message)]) == 1    # once, not per photo
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        load_scene(writers.ngp(tmp_path / "ok", meta_extra={"cx": 4.0, "cy": 0.5}))  # on the border: fine
+
+
+def test_photo_listed_twice_in_a_split_warns(tmp_path, writers):
+    root = writers.blender(tmp_path / "b", n_train=3)
+    meta = writers.read_json(root / "transforms_train.json")
+    meta["frames"][2]["file_path"] = meta["frames"][0]["file_path"]
+    writers.write_json(root / "transforms_train.json", meta)
+    with pytest.warns(UserWarning, match=r"r_0\.png: listed 2 times in the train split; each copy counts as a view"):
+        scene = load_scene(root)
+    assert scene.splits["train"].size == 3
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        load_scene(writers.blender(tmp_path / "ok", n_train=3))
