@@ -42,6 +42,9 @@ def _check_creatable(folder: Path, flag: str, name: Path) -> None:
     root) are caught where the first file is written."""
     existing = Path(os.path.abspath(folder))
     while not existing.exists() and existing != existing.parent:
+        if existing.is_symlink():   # a broken link: creating the folder there fails (after the work, for a render)
+            raise InputError(f"cannot be created: {existing} is a broken symbolic link (to {os.readlink(existing)}); "
+                             f"choose another {flag}", file=name)
         existing = existing.parent
     if not existing.is_dir():
         raise InputError(f"cannot be created: {existing} is not a folder; choose another {flag}", file=name)

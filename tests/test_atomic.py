@@ -62,6 +62,20 @@ def test_output_paths_that_cannot_be_created_are_refused_up_front(tmp_path):
     assert not (tmp_path / "new").exists()
 
 
+def test_broken_links_on_the_way_are_refused_up_front(tmp_path):
+    # before: senerf-fit --out LINK (a link to nothing) died with FileExistsError from mkdir, and senerf-render
+    # rendered every frame before its rename onto the link failed
+    (tmp_path / "link").symlink_to(tmp_path / "gone")
+    for target in (tmp_path / "link", tmp_path / "link" / "sub"):
+        with pytest.raises(InputError, match=r"cannot be created: .*link is a broken symbolic link \(to .*gone\); "
+                                             r"choose another --out"):
+            output_folder(target, "--out")
+    with pytest.raises(InputError, match=r"link is a broken symbolic link"):
+        output_file(tmp_path / "link" / "r.jsonl", "--results")
+    (tmp_path / "gone").mkdir()                       # the link now leads somewhere: an ordinary folder
+    assert output_folder(tmp_path / "link" / "sub", "--out") == tmp_path / "link" / "sub"
+
+
 def test_interrupted_write_keeps_the_old_file_and_removes_the_temporary(tmp_path):
     # Ctrl-C (KeyboardInterrupt is no Exception) while the new content is being written
     target = tmp_path / "a.txt"
