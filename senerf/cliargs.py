@@ -97,13 +97,28 @@ def check_device(device: str, flag: str = "--device") -> str:
 #: OSError numbers that say a path the user gave cannot be used as it is (permissions, a name too long, a loop
 #: of links): bad input, reported in one line with the path, wherever a loader met it
 _USER_ERRNOS = frozenset({errno.EACCES, errno.EPERM, errno.ENAMETOOLONG, errno.ELOOP})
+#: OSError numbers that say the disk is full (or the user's quota spent): not a bug, and nothing finished is lost
+#: (every output is written atomically), so one line saying what to do, as for an interrupt
+_FULL_ERRNOS = frozenset({errno.ENOSPC, errno.EDQUOT})
+
+
+def _full_disk(exc: BaseException) -> OSError | None:
+    """The full-disk OSError behind ``exc``, or None: torch.save, for one, reports a failed write as a
+    RuntimeError raised while handling the ENOSPC OSError, so the whole chain is searched."""
+    seen = set()
+    while exc is not None and id(exc) not in seen:
+        if isinstance(exc, OSError) and exc.errno in _FULL_ERRNOS:
+            return exc
+        seen.add(id(exc))
+        exc = exc.__cause__ or exc.__context__
+    return None
 
 
 def run_command(prog: str, body, interrupted: str) -> int:
     """``body()``'s exit status, with every way out of a command mapped to one: 2 for bad input (one line
     ``<prog>: error: <message>``, no traceback), argparse's own status for ``--help`` / ``--version``, 130 when
-    interrupted (``interrupted`` says what to do next), 1 for an internal error (with the traceback).  Warnings
-    raised meanwhile print as one ``<prog>: warning: <message>`` line each, without source lines.  A SIGTERM
+    interrupted (``interrupted`` says what to do next), 2 also for a full disk (one line, with ``interrupted``),
+    1 for an internal error (with the traceback).  Warnings raised meanwhile print as one ``<prog>: warning: <message>`` line each, without source lines.  A SIGTERM
     (what batch schedulers send) counts as an interrupt, so ``finally`` blocks run and temporary files go."""
     def one_line(message, category, filename, lineno, file=None, line=None) -> None:
         print(f"{prog}: warning: {' '.join(str(message).split())}", file=sys.stderr if file is None else file)
@@ -129,6 +144,11 @@ def run_command(prog: str, body, interrupted: str) -> int:
         if isinstance(exc, OSError) and exc.errno in _USER_ERRNOS and exc.filename:
             # a file or folder of the user's we may not read or search (or name): theirs to fix, one line
             print(f"{prog}: error: {exc.filename}: {exc.strerror or exc}", file=sys.stderr)
+            return 2
+        full = _full_disk(exc)
+        if full is not None:
+            where = f"{full.filename}: " if full.filename else ""
+            print(f"{prog}: error: {where}{full.strerror or full}; free some space ({interrupted})", file=sys.stderr)
             return 2
         traceback.print_exc()   # an internal error: keep the traceback for the bug report
         print(f"{prog}: internal error (please report it with the traceback above)", file=sys.stderr)
