@@ -511,8 +511,10 @@ def _scale_densities(values: dict, overrides: dict, width: float, why: dict) -> 
         return
     nerf = values.get("field") == "nerf"
     if width < 1.0:
-        if "density_shift" not in overrides:
+        if "density_shift" not in overrides and not nerf:
             values["density_shift"] = values.get("density_shift", 0.0) - math.log(width)
+            why["density_scale"] = f"initial densities scaled by 1/{width:.3g} for a box {width:.3g} units wide " \
+                                   f"(density is per unit)"
         return
     if width <= DENSITY_PLATEAU_WIDTH:
         return
