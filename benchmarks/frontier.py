@@ -41,7 +41,8 @@ def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--scene", default=str(default_scene()), help="lego folder (default: $SENERF_DATA/...)")
-    p.add_argument("--presets", nargs="+", default=list(PRESETS))
+    p.add_argument("--presets", nargs="+", default=list(PRESETS), choices=PRESETS,
+                   help="(the quality preset of the early results was removed at b7eed9f)")
     p.add_argument("--seeds", nargs="+", type=int, default=[0])
     p.add_argument("--iterations", type=int, default=None,
                    help="SE-NeRF self-training rounds (default: each preset's own count)")

@@ -109,6 +109,8 @@ def build_parser() -> argparse.ArgumentParser:
     ang.add_argument("--out", default="angles.png")
     ang.add_argument("--preset", default=None, help="only runs of this preset (default: all)")
     ang.add_argument("--methods", nargs="+", default=None, help="only these methods (default: all)")
+    ang.add_argument("--iterations", type=int_flag("--iterations", allow_zero=True), default=None, metavar="K",
+                     help="only self-training runs of K iterations (baselines are always drawn; default: all)")
     return parser
 
 
@@ -379,7 +381,8 @@ def _cmd_angles(args: argparse.Namespace) -> int:
     # baselines at iteration 0, self-training runs at their last iteration (their iteration 0 is a baseline)
     lines = [r for r in final_ok_lines(_load(args.results)) if r["scene"] == name and r["protocol"] == proto.name
              and (args.preset is None or r.get("preset") == args.preset)
-             and (args.methods is None or r.get("method") in args.methods)]
+             and (args.methods is None or r.get("method") in args.methods)
+             and (args.iterations is None or not r.get("iterations") or r["iterations"] == args.iterations)]
     if not lines:
         raise InputError(f"no finished runs of {name} under {proto.name}", file=args.results)
     center = (0.0, 0.0, 0.0) if proto.kind == "object" else None

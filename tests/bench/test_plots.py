@@ -90,6 +90,27 @@ def test_angles_command_on_lego(lego_dir, tmp_path, capsys):
     assert len(err.strip().splitlines()) == 1 and "--out" in err and "Traceback" not in err
 
 
+def test_angles_iterations_keeps_baselines_and_runs_of_k_iterations(lego_dir, tmp_path, monkeypatch):
+    # the committed angles.png (one SE-NeRF iteration) could not be redrawn once 3-iteration runs of the same
+    # method and preset were in the results file: their lines were drawn too
+    import senerf.bench.cli as cli
+    from senerf.bench.results import append_lines
+
+    base = {"attempt": "a", "status": "ok", "scene": "lego", "protocol": "synthetic-extreme3@100", "preset": "fast",
+            "seed": 0, "psnr": 18.0, "views": [0, 1, 51], "test_views": [0, 200], "per_view": {"psnr": [30.0, 15.0]}}
+    lines = [{**base, "run_key": "b", "method": "baseline", "iterations": 0, "iteration": 0},
+             {**base, "run_key": "s1", "method": "senerf", "iterations": 1, "iteration": 1},
+             {**base, "run_key": "s3", "method": "senerf", "iterations": 3, "iteration": 3}]
+    append_lines(tmp_path / "r.jsonl", lines)
+    drawn = []
+    monkeypatch.setattr(cli, "plot_psnr_vs_angle", lambda angles, psnr, out, title: drawn.append(sorted(angles)) or out)
+    args = ["angles", str(tmp_path / "r.jsonl"), "--scene", str(lego_dir), "--protocol", "synthetic-extreme3@100",
+            "--out", str(tmp_path / "a.png")]
+    assert cli.main(args) == 0 and cli.main(args + ["--iterations", "1"]) == 0
+    assert drawn == [["baseline fast", "senerf fast iter 1", "senerf fast iter 3"], ["baseline fast", "senerf fast iter 1"]]
+    assert cli.main(args + ["--iterations", "2", "--methods", "senerf"]) == 2     # nothing left: one line, exit 2
+
+
 def test_angles_names_a_line_whose_views_do_not_fit_the_scene(lego_dir, tmp_path, capsys):
     # test_views past the scene's views, or a line without per_view, ended in an IndexError / ValueError
     # traceback (so at 79e672f)
