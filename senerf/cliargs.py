@@ -118,8 +118,9 @@ def run_command(prog: str, body, interrupted: str) -> int:
     """``body()``'s exit status, with every way out of a command mapped to one: 2 for bad input (one line
     ``<prog>: error: <message>``, no traceback), argparse's own status for ``--help`` / ``--version``, 130 when
     interrupted (``interrupted`` says what to do next), 2 also for a full disk (one line, with ``interrupted``),
-    1 for an internal error (with the traceback).  Warnings raised meanwhile print as one ``<prog>: warning: <message>`` line each, without source lines.  A SIGTERM
-    (what batch schedulers send) counts as an interrupt, so ``finally`` blocks run and temporary files go."""
+    1 for an internal error (with the traceback).  Warnings raised meanwhile print as one
+    ``<prog>: warning: <message>`` line each, without source lines.  A SIGTERM (what batch schedulers send)
+    counts as an interrupt, so ``finally`` blocks run and temporary files go."""
     def one_line(message, category, filename, lineno, file=None, line=None) -> None:
         print(f"{prog}: warning: {' '.join(str(message).split())}", file=sys.stderr if file is None else file)
 

@@ -107,7 +107,8 @@ def test_angles_iterations_keeps_baselines_and_runs_of_k_iterations(lego_dir, tm
     args = ["angles", str(tmp_path / "r.jsonl"), "--scene", str(lego_dir), "--protocol", "synthetic-extreme3@100",
             "--out", str(tmp_path / "a.png")]
     assert cli.main(args) == 0 and cli.main(args + ["--iterations", "1"]) == 0
-    assert drawn == [["baseline fast", "senerf fast iter 1", "senerf fast iter 3"], ["baseline fast", "senerf fast iter 1"]]
+    assert drawn == [["baseline fast", "senerf fast iter 1", "senerf fast iter 3"],
+                     ["baseline fast", "senerf fast iter 1"]]
     assert cli.main(args + ["--iterations", "2", "--methods", "senerf"]) == 2     # nothing left: one line, exit 2
 
 
