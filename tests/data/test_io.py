@@ -161,6 +161,10 @@ def test_float_images_outside_the_unit_range_are_clipped_with_a_warning_and_unre
                                          r"clipped to \[0, 1\]"):
         rgb, _ = _io.read_image(tmp_path / "f.tif", "frames[1].file_path", tmp_path / "t.json")
     assert rgb.max() == 1.0
+    Image.fromarray(np.linspace(-0.5, 0.5, 16, dtype=np.float32).reshape(4, 4), "F").save(tmp_path / "n.tif")
+    with pytest.warns(UserWarning, match=r"n.tif holds float samples in \[-0.5, 0.5\]; clipped to \[0, 1\]"):
+        rgb, _ = _io.read_image(tmp_path / "n.tif", "frames[2].file_path", tmp_path / "t.json")
+    assert rgb.min() == 0.0 and rgb.max() == 0.5                  # below 0 is clipped too (a mutation survived)
     # big-endian 16-bit grey (Pillow's I;16B) was refused as "unsupported sample type >u2" (a review)
     Image.frombytes("I;16B", (3, 2), (np.arange(6, dtype=">u2") * 10000).tobytes()).save(tmp_path / "b.tif")
     with Image.open(tmp_path / "b.tif") as im:   # the samples as Pillow's own pixel access gives them

@@ -181,3 +181,36 @@ def test_a_surrounding_capture_with_a_colmap_model_beside_is_pointed_to_it_and_t
     with pytest.raises(InputError) as info:   # one line, exit 2: not a ValueError from Intrinsics
         load_llff(writers.llff(tmp_path / "thin", rows), downscale=2)
     assert "images are" in str(info.value)
+
+
+def test_the_forward_facing_limits_sit_where_the_docs_say(tmp_path, writers):
+    # each limit was only tested far beyond it (1e-300 bounds, a camera at 1e308, one turned 180 degrees), so a
+    # limit moved by decades still passed (mutations of MAX_DEPTH_RANGE, the 90 degrees and the offset survived)
+    from senerf.errors import InputError
+
+    def load(name, rows):
+        return load_llff(writers.llff(tmp_path / name, rows), downscale=2)
+
+    load("range_ok", writers.llff_rows(near=1.0, far=0.99e6))                  # far / near up to 1e6 (README)
+    with pytest.raises(InputError, match="times smaller than the largest far bound"):
+        load("range_bad", writers.llff_rows(near=1.0, far=1.01e6))
+    for x, ok in ((5.6e6, True), (2.25e7, False)):   # camera 2's offset from the mean: 8/9 x / far 10 = 5e5, 2e6
+        rows = writers.llff_rows()
+        rows[2, 3] = x
+        if ok:
+            load(f"offset_{x:g}", rows)
+        else:
+            with pytest.raises(InputError, match=r"times the scene's far bound") as info:
+                load(f"offset_{x:g}", rows)
+            assert info.value.field == "row 2"
+    for degrees, ok in ((60.0, True), (70.0, False)):   # row 3 turned about y: its rays reach 94 degrees at 70
+        rows = writers.llff_rows()
+        m = rows[3, :15].reshape(3, 5)
+        t = np.radians(degrees)
+        m[:, :3] = np.array([[np.cos(t), 0.0, np.sin(t)], [0.0, 1.0, 0.0], [-np.sin(t), 0.0, np.cos(t)]]) @ m[:, :3]
+        rows[3, :15] = m.reshape(-1)
+        if ok:
+            load(f"turn_{degrees:g}", rows)
+        else:
+            with pytest.raises(InputError, match=r"some rays look 9\d degrees away"):
+                load(f"turn_{degrees:g}", rows)

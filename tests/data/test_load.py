@@ -448,6 +448,11 @@ def test_principal_point_outside_the_image_warns(tmp_path, writers):
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         load_scene(writers.ngp(tmp_path / "ok", meta_extra={"cx": 4.0, "cy": 0.5}))  # on the border: fine
+    with pytest.warns(UserWarning, match=r"principal point \(1\.5, 4\.5\) lies outside"):   # cy is checked too,
+        load_scene(writers.ngp(tmp_path / "cy", meta_extra={"cy": 4.5}))            # against the height
+    wide = writers.ngp(tmp_path / "wide", meta_extra={"w": 8, "cy": 5.0}, image=lambda s: writers.rgba(s, h=4, w=8))
+    with pytest.warns(UserWarning, match=r"\(1\.5, 5\) lies outside the 8x4 image"):
+        load_scene(wide)
 
 
 def test_photo_listed_twice_in_a_split_warns(tmp_path, writers):
