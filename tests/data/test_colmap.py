@@ -295,6 +295,10 @@ def test_truncated_tracks_duplicates_and_undistortion_errors(tmp_path):
     path = root / "sparse" / "0" / "images.txt"
     path.write_text(path.read_text().replace("v_05.png", "./v_04.png"))
     assert "images.txt: image name 'v_04.png' appears 2 times" in _error(root)
+    root, _ = ring_scene(tmp_path / "c3", False, np.arange(0, 360, 60))   # a Windows separator names it too
+    path = root / "sparse" / "0" / "images.txt"
+    path.write_text(path.read_text().replace("v_04.png", "d/v_04.png").replace("v_05.png", "d\\v_04.png"))
+    assert "images.txt: image name 'd/v_04.png' appears 2 times" in _error(root)
 
     root, _ = ring_scene(tmp_path / "d", False, np.arange(0, 360, 60),
                          model=("OPENCV", (20.0, 20.0, 30.0, 6.0, -0.1, 0.0, 0.0, 0.0)))

@@ -280,6 +280,8 @@ def test_a_wide_box_scales_densities_and_the_occupancy_threshold_to_a_four_unit_
     assert wide.density_shift == pytest.approx(-math.log(25.0)) and wide.occupancy_threshold == pytest.approx(0.004)
     given = choose_model(_scene(), np.arange(6), {"aabb": cube(50.0), "density_shift": 0.5}, echo=lambda s: None)
     assert given.density_shift == 0.5 and given.occupancy_threshold == pytest.approx(0.004)   # an override is kept
+    given = choose_model(_scene(), np.arange(6), {"aabb": cube(50.0), "occupancy_threshold": 0.3}, echo=lambda s: None)
+    assert given.occupancy_threshold == 0.3 and given.density_shift == pytest.approx(-math.log(25.0))   # this one too
 
 
 def test_the_grid_keeps_a_fog_of_one_optical_depth_at_any_scale():
