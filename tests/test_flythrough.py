@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 import shutil
 import types
 
@@ -248,6 +249,9 @@ def _nan_field(state):
     # a later row's iteration as a string made the teacher "the last iteration", rendered without a word
     ("metrics.json", lambda m: m["iterations"].append({**m["iterations"][0], "iteration": "1"}),
      "metrics.json: iterations[1].iteration: expected an integer >= 0, got '1'"),
+    ("metrics.json", lambda m: m["iterations"][0].update(iteration=-1),      # the limits themselves (mutations
+     "metrics.json: iterations[0].iteration: expected an integer >= 0, got -1"),   # of both checks survived)
+    ("metrics.json", lambda m: m.update(resolution=[0, 17]), "metrics.json: resolution: expected [H, W], two integers > 0"),
     ("checkpoints/iter_0_train.pt", lambda s: s.update(field=5), "iter_0_train.pt: its field is not a state dict"),
     ("checkpoints/iter_0_train.pt", _nan_field, "iter_0_train.pt: its field holds non-finite values"),
     ("run.json", lambda r: r.update(scene_dir=5), "run.json: scene_dir: missing or of the wrong type"),
@@ -690,6 +694,11 @@ def test_overwrite_keeps_files_put_into_an_earlier_render_and_an_interrupt_betwe
     with pytest.raises(InputError, match="holds .notes.md, which senerf-render did not write"):
         write_frames(out, frames, {"senerf_render": "y"}, fps=10.0, overwrite=True)
     (out / ".notes.md").unlink()
+    for name in ("rgb_1.png", "rgb_mine.png", "path.json.bak", "depth_0001.png.orig"):   # only our exact names
+        (out / name).write_text("keep")                                             # are ours (mutations survived)
+        with pytest.raises(InputError, match=f"holds {re.escape(name)}, which senerf-render did not write"):
+            write_frames(out, frames, {"senerf_render": "y"}, fps=10.0, overwrite=True)
+        (out / name).unlink()
     (out / ".DS_Store").write_text("")   # the file manager's: not the user's work
     real_rename = Path.rename
 
