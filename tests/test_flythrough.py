@@ -251,7 +251,8 @@ def _nan_field(state):
      "metrics.json: iterations[1].iteration: expected an integer >= 0, got '1'"),
     ("metrics.json", lambda m: m["iterations"][0].update(iteration=-1),      # the limits themselves (mutations
      "metrics.json: iterations[0].iteration: expected an integer >= 0, got -1"),   # of both checks survived)
-    ("metrics.json", lambda m: m.update(resolution=[0, 17]), "metrics.json: resolution: expected [H, W], two integers > 0"),
+    ("metrics.json", lambda m: m.update(resolution=[0, 17]),
+     "metrics.json: resolution: expected [H, W], two integers > 0"),
     ("checkpoints/iter_0_train.pt", lambda s: s.update(field=5), "iter_0_train.pt: its field is not a state dict"),
     ("checkpoints/iter_0_train.pt", _nan_field, "iter_0_train.pt: its field holds non-finite values"),
     ("run.json", lambda r: r.update(scene_dir=5), "run.json: scene_dir: missing or of the wrong type"),
