@@ -277,3 +277,13 @@ def test_an_adaptive_quantile_on_a_tie_keeps_the_tied_pixels():
     tau = resolve_threshold("adaptive", spread.ravel(), alpha=0.15)
     assert threshold_weights(spread, np.ones_like(spread, bool), "adaptive", tau=tau).mean() == pytest.approx(0.15)
     assert threshold_weights(flat, fg, "fixed", tau=0.93).sum() == 0.0   # the fixed threshold stays strict
+    # a tie at tau with pixels above it: ">" keeps those alone (the fallback is for "none kept" only)
+    mixed = np.r_[np.full(80, 0.5), np.full(10, 0.7), np.full(10, 0.9)].reshape(10, 10)
+    tau = resolve_threshold("adaptive", mixed.ravel(), alpha=0.15)
+    assert tau == 0.7 and threshold_weights(mixed, np.ones_like(mixed, bool), "adaptive", tau=tau).mean() == 0.1
+    # the fallback looks at the foreground: a background pixel above tau does not count as one kept
+    fg_flat = np.ones((4, 4), bool)
+    fg_flat[0, 0] = False
+    with_bg = np.where(fg_flat, 0.93, 0.99)
+    tau = resolve_threshold("adaptive", with_bg[fg_flat], alpha=0.15)
+    assert threshold_weights(with_bg, fg_flat, "adaptive", tau=tau).sum() == 15.0
