@@ -99,6 +99,10 @@ def test_run_command_maps_every_way_out_to_its_exit_status(capsys):
             raise RuntimeError("[enforce fail at inline_container.cc:672] . unexpected pos 3010624 vs 3010536")
     assert run_command("prog", torch_save_on_a_full_disk, "rerun it") == 2
     assert capsys.readouterr().err == "prog: error: No space left on device; free some space (rerun it)\n"
+    caused = RuntimeError("write failed")          # an explicit cause (raise ... from), with no context
+    caused.__cause__ = OSError(errno.ENOSPC, "No space left on device", "/o/x.png")
+    assert run_command("prog", raising(caused), "rerun it") == 2
+    assert capsys.readouterr().err == "prog: error: /o/x.png: No space left on device; free some space (rerun it)\n"
 
 
 def test_run_command_prints_warnings_as_one_line_each(capsys):

@@ -289,7 +289,10 @@ def test_mistyped_lines_are_skipped_with_a_warning_not_crashed_on_or_counted(tmp
     good = json.loads(_FINISHED_LINE)
     results = tmp_path / "r.jsonl"
     bad_values = [("seed", "0"), ("iteration", "1"), ("scene", 5), ("iterations", "x"), ("run_key", ["a"]),
-                  ("commit", None), ("psnr", "abc"), ("psnr", None), ("psnr", float("nan")), ("views", ["a"])]
+                  ("commit", None), ("psnr", "abc"), ("psnr", None), ("psnr", float("nan")), ("views", ["a"]),
+                  # each check's other cases (mutations survived): an infinite PSNR, a NaN SSIM, a bool index,
+                  # a resolution of strings
+                  ("psnr", float("inf")), ("ssim", float("nan")), ("test_views", [True, 1]), ("resolution", ["a", 1])]
     lines = [_FINISHED_LINE] + [json.dumps({**good, "run_key": f"k{i}", name: value}) + "\n"
                                 for i, (name, value) in enumerate(bad_values)]
     results.write_text("".join(lines))
@@ -309,6 +312,15 @@ def test_a_report_or_plot_over_its_own_results_file_is_refused(tmp_path, capsys)
     assert err.strip() == (f"senerf-bench: error: {results}: is {results}, which this command reads; "
                            f"choose another --out")
     assert results.read_text() == _FINISHED_LINE
+    masks = tmp_path / "masks.json"                # and the other inputs: --into the results, --out a masks file,
+    masks.write_text("{}")                          # angles --out the results
+    for argv, flag in ((["report", str(results), "--into", str(results)], "--into"),
+                       (["report", str(results), "--masks", str(masks), "--out", str(masks)], "--out"),
+                       (["angles", str(results), "--scene", str(tmp_path), "--protocol", "llff3", "--out", str(results)],
+                        "--out")):
+        assert main(argv) == 2
+        assert capsys.readouterr().err.strip().endswith(f"which this command reads; choose another {flag}")
+    assert results.read_text() == _FINISHED_LINE and masks.read_text() == "{}"
 
 
 def test_an_interrupt_exits_130_with_one_line(tmp_path, capsys, monkeypatch):
