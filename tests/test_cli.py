@@ -279,6 +279,35 @@ def test_self_training_on_one_view_is_refused_before_anything_is_written(tiny_sc
     assert main([str(tiny_scene), "--out", str(out), *SMALL, "--views", "0"]) == 0   # the baseline alone fits
 
 
+def test_reliability_features_too_large_for_the_machine_are_refused_before_anything_is_written(
+        tiny_scene, tmp_path, capsys, monkeypatch):
+    # fern at 2016x1512 (VGG-19: 10.9 GiB a view) trained its teacher and rendered for an hour on 2 cores, then
+    # ran out of memory in its first pseudo view's features (an audit, so at 102f604)
+    import os
+
+    import numpy as np
+
+    from senerf.cli import FEATURE_CHANNELS, _check_features_fit
+    from senerf.selftrain import make_feature_extractor
+
+    image = np.random.default_rng(0).random((1, 16, 16, 3), dtype=np.float32)
+    for name, channels in FEATURE_CHANNELS.items():   # the counts the check uses are the extractors' own
+        assert make_feature_extractor(name)(image).shape == (1, 16, 16, channels)
+    gib = 2**30
+    _check_features_fit("vgg19", (756, 1008), have=24 * gib)              # fern at 1008x756: 2.7 GiB a view, runs
+    with pytest.raises(InputError, match=r"--downscale: vgg19 reliability features of one 2016x1512 view take "
+                                         r"10\.9 GiB .* --features daisy"):
+        _check_features_fit("vgg19", (1512, 2016), have=24 * gib)
+    _check_features_fit("daisy", (1512, 2016), have=24 * gib)              # 2.3 GiB a view with DAISY
+    real = os.sysconf
+    monkeypatch.setattr(os, "sysconf", lambda name: 256 if name == "SC_PHYS_PAGES" else real(name))   # 1 MiB "RAM"
+    out = tmp_path / "o"
+    small = [a for a in SMALL if a not in ("--iterations", "0")]
+    assert main([str(tiny_scene), "--out", str(out), *small, "--iterations", "1"]) == 2
+    assert "--downscale: vgg19 reliability features of one" in _one_error_line(capsys)
+    assert not out.exists()
+
+
 @pytest.mark.parametrize("position, needle", [
     (0.0, "all stand at one camera centre"),     # a tripod pan: no parallax (math.log(0) crashed, so at 71d19d4)
     (1e300, "the cameras' box cannot be computed"),  # norms overflow
