@@ -29,6 +29,7 @@ from pathlib import Path
 from senerf import __version__
 from senerf.cliargs import SEED_MAX, OneLineParser, argument_type, check_device, float_flag, int_flag, run_command
 from senerf.errors import InputError
+from senerf.memory import physical_memory_bytes
 
 __all__ = ["main", "build_parser", "parse_views"]
 
@@ -228,10 +229,7 @@ def _check_model_fits(model, device: str = "cpu") -> None:
 
     _, rows = plane_layout(tuple(int(model.resolution * m) for m in model.multires))
     table = rows * model.n_features * 4  # one float32 copy of the planes
-    try:
-        have = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
-    except (ValueError, OSError, AttributeError):  # pragma: no cover - platforms without sysconf
-        have = None
+    have = physical_memory_bytes()
     if have is not None and 4 * table > have // 2:
         raise InputError(f"{model.resolution} needs {4 * table / 2**30:.1f} GiB for the feature planes and "
                          f"their optimiser state, more than half of this machine's {have / 2**30:.0f} GiB",
@@ -256,11 +254,9 @@ def _check_features_fit(features: str, size: tuple, have: int | None = None) -> 
     view's and a known view's maps at once, plus VGG's temporaries: fern at 2016x1512 (10.9 GiB a view) ran out
     of memory in its first pseudo view's features, after teacher training and rendering (about an hour on 2
     cores); at 1008x756 (2.7 GiB a view) labelling peaked at 16.5 GB on a 24 GiB machine and went on."""
+    have = physical_memory_bytes() if have is None else have
     if have is None:
-        try:
-            have = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
-        except (ValueError, OSError, AttributeError):  # pragma: no cover - platforms without sysconf
-            return
+        return
     h, w = size
     view = h * w * FEATURE_CHANNELS.get(features, 960) * 4
     if 4 * view > have:

@@ -36,6 +36,7 @@ import numpy as np
 from senerf import __version__
 from senerf.cliargs import OneLineParser, check_device, float_flag, int_flag, run_command
 from senerf.errors import InputError
+from senerf.memory import physical_memory_bytes
 
 __all__ = ["FittedRun", "load_fitted_run", "with_iteration", "path_cameras", "render_frames", "side_by_side",
            "write_frames", "recover_interrupted", "main", "PATHS"]
@@ -488,9 +489,8 @@ def _check_memory(intrinsics, renders: int = 1) -> None:
     renders and the 8-bit frames are all held until the GIFs are written), rendered ``renders`` times
     (2 with ``--compare``)."""
     need = 32.0 * renders * sum(k.width * k.height for k in intrinsics)
-    try:
-        have = float(os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES"))
-    except (AttributeError, ValueError, OSError):   # not a POSIX system: no check
+    have = physical_memory_bytes()
+    if have is None:   # not a POSIX system: no check
         return
     if need > 0.8 * have:
         k = intrinsics[0]

@@ -32,6 +32,8 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
+from senerf.memory import physical_memory_bytes
+
 __all__ = [
     "FeatureExtractor",
     "LazyViewFeatures",
@@ -338,9 +340,8 @@ def known_view_features(extractor, images: np.ndarray, memory_bytes: int | None 
     array when that is unknown), else ``extractor.lazy(images, keep=k)`` with ``k`` the number of views
     whose full-size features fit in that share.  All give the same values."""
     if memory_bytes is None:
-        try:
-            memory_bytes = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
-        except (AttributeError, ValueError, OSError):
+        memory_bytes = physical_memory_bytes()
+        if memory_bytes is None:
             return extractor(images)
     m, h, w = np.shape(images)[:3]
     view_bytes = 4 * h * w * int(extractor.channels)
