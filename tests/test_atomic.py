@@ -161,4 +161,3 @@ def test_places_without_write_permission_are_refused_up_front(tmp_path, monkeypa
             check(path, flag)
         assert str(info.value) == message
     assert output_file(tmp_path / "free.md", "--into") == tmp_path / "free.md"
-

@@ -16,3 +16,11 @@ def test_physical_memory_is_the_pages_times_their_size_or_none(monkeypatch):
         raise ValueError(name)
     monkeypatch.setattr(os, "sysconf", unknown)
     assert physical_memory_bytes() is None
+
+
+def test_import_does_not_import_torch():
+    import subprocess
+    import sys
+
+    code = "import senerf.memory; import sys; assert 'torch' not in sys.modules"
+    assert subprocess.run([sys.executable, "-c", code]).returncode == 0
