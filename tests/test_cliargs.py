@@ -157,6 +157,9 @@ def test_run_command_reports_a_path_the_user_may_not_read_in_one_line(capsys, tm
     too_long = OSError(errno.ENAMETOOLONG, "File name too long", scene + "/" + "a" * 300)
     assert run_command("prog", raising(too_long), "x") == 2
     assert capsys.readouterr().err.count("\n") == 1
+    for code, text in ((errno.ELOOP, "Too many levels of symbolic links"), (errno.EPERM, "Operation not permitted")):
+        assert run_command("prog", raising(OSError(code, text, scene)), "x") == 2
+        assert capsys.readouterr().err == f"prog: error: {scene}: {text}\n"
     assert run_command("prog", raising(OSError(errno.EBADF, "Bad file descriptor", scene)), "x") == 1
     assert "Traceback" in capsys.readouterr().err
     assert run_command("prog", raising(PermissionError(errno.EACCES, "Permission denied")), "x") == 1   # no path

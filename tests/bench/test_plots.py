@@ -110,6 +110,7 @@ def test_angles_iterations_keeps_baselines_and_runs_of_k_iterations(lego_dir, tm
     assert drawn == [["baseline fast", "senerf fast iter 1", "senerf fast iter 3"],
                      ["baseline fast", "senerf fast iter 1"]]
     assert cli.main(args + ["--iterations", "2", "--methods", "senerf"]) == 2     # nothing left: one line, exit 2
+    assert cli.main(args + ["--iterations", "0"]) == 0 and drawn[-1] == ["baseline fast"]   # baselines alone
 
 
 def test_angles_names_a_line_whose_views_do_not_fit_the_scene(lego_dir, tmp_path, capsys):

@@ -154,6 +154,8 @@ def test_cmyk_and_transparent_palette_images_are_read_as_rgb_and_rgba(tmp_path):
 
 def test_float_images_outside_the_unit_range_are_clipped_with_a_warning_and_unread_modes_refused(tmp_path):
     # float samples were taken as they are (a 0-255 float TIFF trained as values up to 253; so at 2e4108c)
+    import warnings
+
     from PIL import Image
 
     Image.fromarray(np.full((4, 4), 200.0, np.float32), "F").save(tmp_path / "f.tif")
@@ -165,6 +167,10 @@ def test_float_images_outside_the_unit_range_are_clipped_with_a_warning_and_unre
     with pytest.warns(UserWarning, match=r"n.tif holds float samples in \[-0.5, 0.5\]; clipped to \[0, 1\]"):
         rgb, _ = _io.read_image(tmp_path / "n.tif", "frames[2].file_path", tmp_path / "t.json")
     assert rgb.min() == 0.0 and rgb.max() == 0.5                  # below 0 is clipped too (a mutation survived)
+    Image.fromarray(np.full((4, 4), 1.0, np.float32), "F").save(tmp_path / "one.tif")
+    with warnings.catch_warnings():                               # exactly 1.0 is inside [0, 1]: no warning
+        warnings.simplefilter("error")
+        assert _io.read_image(tmp_path / "one.tif", "frames[3].file_path")[0].max() == 1.0
     # big-endian 16-bit grey (Pillow's I;16B) was refused as "unsupported sample type >u2" (a review)
     Image.frombytes("I;16B", (3, 2), (np.arange(6, dtype=">u2") * 10000).tobytes()).save(tmp_path / "b.tif")
     with Image.open(tmp_path / "b.tif") as im:   # the samples as Pillow's own pixel access gives them
