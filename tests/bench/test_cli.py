@@ -316,8 +316,8 @@ def test_a_report_or_plot_over_its_own_results_file_is_refused(tmp_path, capsys)
     masks.write_text("{}")                          # angles --out the results
     for argv, flag in ((["report", str(results), "--into", str(results)], "--into"),
                        (["report", str(results), "--masks", str(masks), "--out", str(masks)], "--out"),
-                       (["angles", str(results), "--scene", str(tmp_path), "--protocol", "llff3", "--out", str(results)],
-                        "--out")):
+                       (["angles", str(results), "--scene", str(tmp_path), "--protocol", "llff3",
+                         "--out", str(results)], "--out")):
         assert main(argv) == 2
         assert capsys.readouterr().err.strip().endswith(f"which this command reads; choose another {flag}")
     assert results.read_text() == _FINISHED_LINE and masks.read_text() == "{}"
