@@ -244,28 +244,6 @@ def _check_model_fits(model, device: str = "cpu") -> None:
                              f"{gpu / 2**30:.0f} GiB", field="--resolution")
 
 
-#: floats per pixel of each reliability feature extractor (VGG-19's four maps, 64 + 128 + 256 + 512; DAISY's default)
-FEATURE_CHANNELS = {"vgg19": 960, "daisy": 200}
-
-
-def _check_features_fit(features: str, size: tuple, have: int | None = None) -> None:
-    """:class:`InputError` when one view's full-resolution reliability features would take more than a quarter
-    of this machine's memory (``have`` bytes, default: the physical memory).  Labelling holds at least a pseudo
-    view's and a known view's maps at once, plus VGG's temporaries: fern at 2016x1512 (10.9 GiB a view) ran out
-    of memory in its first pseudo view's features, after teacher training and rendering (about an hour on 2
-    cores); at 1008x756 (2.7 GiB a view) labelling peaked at 16.5 GB on a 24 GiB machine and went on."""
-    have = physical_memory_bytes() if have is None else have
-    if have is None:
-        return
-    h, w = size
-    view = h * w * FEATURE_CHANNELS.get(features, 960) * 4
-    if 4 * view > have:
-        daisy = "--features daisy (200 floats a pixel, not 960) " if features == "vgg19" else ""
-        raise InputError(f"{features} reliability features of one {w}x{h} view take {view / 2**30:.1f} GiB and "
-                         f"self-training holds several at once, more than this machine's {have / 2**30:.0f} GiB "
-                         f"allows; use a larger --downscale, {daisy}or --iterations 0", field="--downscale")
-
-
 def _default_protocol(scene, fmt: str, views) -> str:
     """The protocol when ``--protocol`` is not given: ``views`` when views are given; for a Blender-style
     object scene with a test split (not COLMAP's), ``extreme`` when it is named in
@@ -522,9 +500,11 @@ def _run(args, argv) -> int:
                              f"{protocol} leaves none of the {scene.n_images} images", file=scene_dir,
                              field="--reliability")
     if st_cfg is not None and st_cfg.reliability != "oracle":   # checked now, not after the baseline has trained
-        from senerf.selftrain import pseudo_view_centre_problem
+        from senerf.selftrain import features_memory_problem, pseudo_view_centre_problem
 
-        _check_features_fit(st_cfg.features, scene.size)
+        problem = features_memory_problem(st_cfg.features, scene.size)
+        if problem is not None:
+            raise InputError(problem, field="--downscale")
 
         problem = pseudo_view_centre_problem(scene, train_idx)
         if problem is not None:

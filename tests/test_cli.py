@@ -283,22 +283,9 @@ def test_reliability_features_too_large_for_the_machine_are_refused_before_anyth
         tiny_scene, tmp_path, capsys, monkeypatch):
     # fern at 2016x1512 (VGG-19: 10.9 GiB a view) trained its teacher and rendered for an hour on 2 cores, then
     # ran out of memory in its first pseudo view's features (an audit, so at 102f604)
+    # (the limit itself: tests/selftrain/test_features.py)
     import os
 
-    import numpy as np
-
-    from senerf.cli import FEATURE_CHANNELS, _check_features_fit
-    from senerf.selftrain import make_feature_extractor
-
-    image = np.random.default_rng(0).random((1, 16, 16, 3), dtype=np.float32)
-    for name, channels in FEATURE_CHANNELS.items():   # the counts the check uses are the extractors' own
-        assert make_feature_extractor(name)(image).shape == (1, 16, 16, channels)
-    gib = 2**30
-    _check_features_fit("vgg19", (756, 1008), have=24 * gib)              # fern at 1008x756: 2.7 GiB a view, runs
-    with pytest.raises(InputError, match=r"--downscale: vgg19 reliability features of one 2016x1512 view take "
-                                         r"10\.9 GiB .* --features daisy"):
-        _check_features_fit("vgg19", (1512, 2016), have=24 * gib)
-    _check_features_fit("daisy", (1512, 2016), have=24 * gib)              # 2.3 GiB a view with DAISY
     real = os.sysconf
     monkeypatch.setattr(os, "sysconf", lambda name: 256 if name == "SC_PHYS_PAGES" else real(name))   # 1 MiB "RAM"
     out = tmp_path / "o"

