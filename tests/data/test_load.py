@@ -463,6 +463,14 @@ def test_photo_listed_twice_in_a_split_warns(tmp_path, writers):
     with pytest.warns(UserWarning, match=r"r_0\.png: listed 2 times in the train split; each copy counts as a view"):
         scene = load_scene(root)
     assert scene.splits["train"].size == 3
+    root = writers.blender(tmp_path / "b2", n_train=4)                   # two photos twice: one line, counting
+    meta = writers.read_json(root / "transforms_train.json")
+    meta["frames"][2]["file_path"], meta["frames"][3]["file_path"] = (meta["frames"][0]["file_path"],
+                                                                      meta["frames"][1]["file_path"])
+    writers.write_json(root / "transforms_train.json", meta)
+    with pytest.warns(UserWarning, match=r"r_0\.png: listed 2 times in the train split \(1 more photo\(s\) "
+                                         r"likewise\); each copy counts as a view"):
+        load_scene(root)
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         load_scene(writers.blender(tmp_path / "ok", n_train=3))
