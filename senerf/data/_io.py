@@ -201,7 +201,8 @@ _PILLOW_AS_IS = ("1", "L", "LA", "RGB", "RGBA", "I;16", "I;16B", "I;16L", "F")
 
 
 def _read_pillow(path: Path, field: str, file: Path) -> np.ndarray:
-    """Decode with Pillow, as stored: grey, grey+alpha, RGB, RGBA, 16-bit grey or float; a palette image
+    """Decode with Pillow, as stored: grey, grey+alpha, RGB, RGBA, 16-bit grey or float (16-bit colour TIFFs
+    with OpenCV, which keeps their 16 bits); a palette image
     becomes RGBA when its palette has transparency (RGB otherwise), CMYK / YCbCr / premultiplied RGBa become
     RGB(A) (read as they are, CMYK's four channels would pass for RGBA).  The EXIF orientation tag is not applied:
     the pixels are read as stored, as COLMAP reads them to compute the poses.
@@ -213,6 +214,8 @@ def _read_pillow(path: Path, field: str, file: Path) -> np.ndarray:
 
     with Image.open(path) as im:
         mode = im.mode
+        if im.format == "TIFF" and mode in ("RGB", "RGBA") and max(_tiff_bits(im), default=8) > 8:
+            return _read_opencv(path)   # Pillow reads 16-bit colour TIFFs as 8-bit RGB(A): 1/255 steps, not 1/65535
         if mode in ("P", "PA"):
             im = im.convert("RGBA" if mode == "PA" or "transparency" in im.info else "RGB")
         elif mode in ("CMYK", "YCbCr", "LAB", "HSV"):
@@ -225,6 +228,22 @@ def _read_pillow(path: Path, field: str, file: Path) -> np.ndarray:
             raise InputError(f"image {path} has Pillow mode {mode!r}, which senerf does not read; save it as 8- or "
                              f"16-bit RGB(A) or grey", file=file, field=field)
         return np.asarray(im)
+
+
+def _tiff_bits(im) -> tuple:
+    """A TIFF's BitsPerSample tag (258), as a tuple; empty when absent."""
+    bits = getattr(im, "tag_v2", {}).get(258, ())
+    return tuple(bits) if isinstance(bits, (tuple, list)) else (bits,)
+
+
+def _read_opencv(path: Path) -> np.ndarray:
+    """Decode with OpenCV as stored (16-bit samples kept), channels reordered BGR(A) -> RGB(A)."""
+    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if img is None:
+        raise ValueError("OpenCV could not decode it")
+    if img.ndim == 3 and img.shape[2] in (3, 4):
+        img = img[..., [2, 1, 0, 3][: img.shape[2]]]  # BGR(A) -> RGB(A)
+    return img
 
 
 def read_rgba(path: Path, field: str, file: Path | None = None, clipped: list | None = None) -> np.ndarray:
@@ -252,11 +271,7 @@ def read_rgba(path: Path, field: str, file: Path | None = None, clipped: list | 
 
             with Image.open(path) as im:
                 im.verify()
-            img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-            if img is None:
-                raise ValueError("OpenCV could not decode it")
-            if img.ndim == 3 and img.shape[2] in (3, 4):
-                img = img[..., [2, 1, 0, 3][: img.shape[2]]]  # BGR(A) -> RGB(A)
+            img = _read_opencv(path)
         elif path.suffix.lower() in _PILLOW_SUFFIXES:
             img = _read_pillow(path, field, file)
         else:

@@ -58,6 +58,22 @@ def test_16bit_rgba_png_keeps_16_bits(tmp_path):
     np.testing.assert_allclose(alpha, img[..., 3] / 65535.0, atol=1e-7)
 
 
+@pytest.mark.parametrize("suffix", [".tif", ".tiff"])
+def test_16bit_colour_tiff_keeps_16_bits(tmp_path, suffix):
+    # Pillow reads a 16-bit RGB TIFF as 8-bit RGB: values 1 and 257 collided and every sample was off by up to
+    # 1/255 (so until this test); a 16-bit grey TIFF Pillow reads as it is.
+    img = np.random.default_rng(5).integers(0, 65536, (3, 4, 3), dtype=np.uint16)
+    img[0, 0] = (1, 257, 65535)
+    path = tmp_path / f"c16{suffix}"
+    cv2.imwrite(str(path), img[..., ::-1])  # OpenCV stores BGR order
+    rgb, alpha = _io.read_image(path, "f")
+    assert alpha is None
+    np.testing.assert_allclose(rgb, img / 65535.0, atol=1e-7)
+    grey = np.array([[0, 1, 257, 65535]], dtype=np.uint16)
+    cv2.imwrite(str(tmp_path / f"g16{suffix}"), grey)
+    np.testing.assert_allclose(_io.read_image(tmp_path / f"g16{suffix}", "f")[0][..., 0], grey / 65535.0, atol=1e-7)
+
+
 def test_rgb_png_has_no_alpha(tmp_path):
     iio.imwrite(tmp_path / "c.png", np.zeros((2, 2, 3), np.uint8))
     assert _io.read_image(tmp_path / "c.png", "f")[1] is None
