@@ -396,13 +396,16 @@ def _run_baseline(scene, train_idx, test_idx, model, train_cfg, out: Path, argv,
     field = build_field(model, seed=train_cfg.seed, steps=train_cfg.steps)
     result = train_field(field, rays, train_cfg, checkpoint=out / "checkpoints" / "iter_0_train.pt",
                          progress=progress)
+    eval_record = out / "checkpoints" / "iter_0_eval.json"
     ev = evaluate(result.field, scene, test_idx, out / "iter_0" / "test", model, occupancy=result.occupancy,
-                  device=train_cfg.device, progress=progress)
-    seconds = time.perf_counter() - t0 + result.seconds_before  # an interrupted call's training counts too
+                  device=train_cfg.device, progress=progress, resume=eval_record)
+    # interrupted calls' training and evaluation count too
+    seconds = time.perf_counter() - t0 + result.seconds_before + ev["seconds_before"]
     metrics = metrics_document(scene, train_idx, test_idx, argv, config)
     metrics["iterations"].append(iteration_row(0, ev, None, seconds))
     metrics["seconds_total"] = seconds
     atomic_write_text(out / "metrics.json", json.dumps(metrics, indent=1))
+    eval_record.unlink(missing_ok=True)
     return metrics
 
 

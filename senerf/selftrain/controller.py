@@ -641,7 +641,7 @@ def run_selftraining(scene, train_idx, test_idx, model, train_cfg, cfg: SelfTrai
     rays = RayBatchSource.from_scene(scene, train_idx, model, device)
     extractor = None
     known_feats = None
-    carried = 0.0  # training seconds of interrupted earlier calls, from the checkpoints resumed
+    carried = 0.0  # training and evaluation seconds of interrupted earlier calls, from what they recorded
     for k in range(start, cfg.iterations + 1):
         t_it = time.perf_counter()
         reliable_fraction = None
@@ -681,14 +681,18 @@ def run_selftraining(scene, train_idx, test_idx, model, train_cfg, cfg: SelfTrai
         teacher, occupancy = result.field, result.occupancy
         carried += result.seconds_before
         teacher.eval()
+        eval_record = ckpt_dir / f"iter_{k}_eval.json"
         ev = evaluate(teacher, scene, test_idx, out / f"iter_{k}" / "test", model, occupancy=occupancy,
-                      device=device, progress=progress)
+                      device=device, progress=progress, resume=eval_record)
+        carried += ev["seconds_before"]
         rf = None if reliable_fraction is None or math.isnan(reliable_fraction) else float(reliable_fraction)
-        metrics["iterations"].append(iteration_row(k, ev, rf, time.perf_counter() - t_it + result.seconds_before))
+        metrics["iterations"].append(iteration_row(
+            k, ev, rf, time.perf_counter() - t_it + result.seconds_before + ev["seconds_before"]))
         _save_teacher(teacher_path, teacher, occupancy, k, settings, metrics["iterations"])
         _record_scene_files(files_record, files_now)
         metrics["seconds_total"] = seconds_before + carried + time.perf_counter() - t_run
         atomic_write_text(metrics_path, json.dumps(metrics, indent=1))
+        eval_record.unlink(missing_ok=True)
         echo(f"selftrain: iteration {k}: test PSNR {ev['psnr']:.2f} dB, SSIM {ev['ssim']:.3f}")
     metrics["seconds_total"] = seconds_before + carried + time.perf_counter() - t_run
     atomic_write_text(metrics_path, json.dumps(metrics, indent=1))

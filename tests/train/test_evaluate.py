@@ -78,6 +78,65 @@ def test_evaluate_composites_the_ground_truth_on_the_eval_background(tmp_path):
     assert black["per_view"]["psnr"][1] == pytest.approx(10 * math.log10(1 / 0.09), abs=1e-5)
 
 
+def test_an_interrupted_evaluation_resumes_at_its_first_missing_view(tmp_path, monkeypatch):
+    # Catches: finished views rendered again after an interruption (200 views at 400x400 take ~20 min), figures
+    # differing from an uninterrupted call's, the interrupted call's seconds lost, a record of another field or
+    # of other test views reused, a view whose PNGs were deleted not rendered again.
+    import functools
+    import importlib
+    import json
+
+    from senerf.data import Scene
+    from senerf.train import build_field
+
+    rng = np.random.default_rng(0)
+    c2w = np.stack([look_at(np.array([4 * math.cos(a), 4 * math.sin(a), 1.0]), np.zeros(3))
+                    for a in np.linspace(0, 2, 5)])
+    scene = Scene(name="e", root=".", rgb=rng.random((5, 12, 14, 3)).astype(np.float32), alpha=None, intrinsics=K,
+                  intrinsics_all=(K,) * 5, c2w=c2w, image_paths=tuple(f"{i}.png" for i in range(5)))
+    model = _model("black")
+    field = build_field(model, seed=0).eval()
+    test_idx = [4, 0, 2, 3]
+    whole = evaluate(field, scene, test_idx, tmp_path / "whole", model, progress=False)
+    assert whole["seconds_before"] == 0.0
+
+    evaluate_module = importlib.import_module("senerf.train.evaluate")   # the attribute is the function
+    real, calls = evaluate_module.render_views, []
+
+    def counted(*args, stop_at=None, **kwargs):
+        calls.append(1)
+        if len(calls) == stop_at:
+            raise KeyboardInterrupt
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(evaluate_module, "render_views", functools.partial(counted, stop_at=3))
+    record = tmp_path / "eval.json"
+    with pytest.raises(KeyboardInterrupt):
+        evaluate(field, scene, test_idx, tmp_path / "run", model, progress=False, resume=record)
+    monkeypatch.setattr(evaluate_module, "render_views", counted)
+    kept = json.loads(record.read_text())
+    assert sorted(kept["views"]) == ["0", "1"] and kept["seconds"] > 0
+    calls.clear()
+    again = evaluate(field, scene, test_idx, tmp_path / "run", model, progress=False, resume=record)
+    assert len(calls) == 2   # views 2 and 3 only
+    assert again["per_view"] == whole["per_view"] and again["psnr"] == whole["psnr"] and again["ssim"] == whole["ssim"]
+    assert again["seconds_before"] == kept["seconds"] and again["seconds"] > kept["seconds"]
+    for k in range(4):
+        name = f"rgb_{k:03d}.png"
+        assert (tmp_path / "run" / name).read_bytes() == (tmp_path / "whole" / name).read_bytes()
+    # a deleted render is made again; the others are not
+    (tmp_path / "run" / "depth_001.png").unlink()
+    calls.clear()
+    assert evaluate(field, scene, test_idx, tmp_path / "run", model, progress=False, resume=record)["per_view"] \
+        == whole["per_view"]
+    assert len(calls) == 1 and (tmp_path / "run" / "depth_001.png").is_file()
+    # another field, or other test views: the record is not theirs, every view is rendered
+    for other_field, other_idx in ((build_field(model, seed=1).eval(), test_idx), (field, [4, 0, 2, 1])):
+        calls.clear()
+        evaluate(other_field, scene, other_idx, tmp_path / "other", model, progress=False, resume=record)
+        assert len(calls) == 4
+
+
 def test_depth_to_color_near_is_red_far_is_blue_and_empty_fades():
     # Catches: the colour map not reversed (near must be turbo's red end, turbo(1.0); far its blue end,
     # turbo(0.0)), or empty pixels not faded to the background.
