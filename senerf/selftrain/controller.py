@@ -627,6 +627,8 @@ def run_selftraining(scene, train_idx, test_idx, model, train_cfg, cfg: SelfTrai
         metrics["iterations"] = [it for it in rows if it["iteration"] <= done]
         seconds_before = float(sum(it.get("seconds", 0.0) for it in metrics["iterations"]))
         start = done + 1
+        for k in range(start):   # a kill between metrics.json and the record's removal left it behind
+            (ckpt_dir / f"iter_{k}_eval.json").unlink(missing_ok=True)
         if done >= cfg.iterations:   # finished (perhaps beyond what is asked now): reported as it is, untouched
             echo(f"selftrain: {out} holds iterations 0-{done} already ({cfg.iterations} asked for); nothing to train")
             stored = finished_metrics(out, done)   # None: killed before its metrics.json, rebuilt below
