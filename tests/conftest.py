@@ -1,4 +1,4 @@
-"""Shared fixtures: the location of the real benchmark scenes."""
+"""Shared fixtures: the location of the real benchmark scenes, and a spy on the evaluation's renders."""
 
 from __future__ import annotations
 
@@ -43,3 +43,28 @@ def fern_dir(shared_data: Path) -> Path:
     if not path.is_dir():
         pytest.skip(f"fern scene not found at {path}")
     return path
+
+
+class RenderSpy:
+    """Counts the calls of ``senerf.train.evaluate.render_views`` (one per test view :func:`evaluate` renders);
+    with ``stop_at = n`` the n-th call raises KeyboardInterrupt instead, as a Ctrl-C mid-evaluation."""
+
+    def __init__(self, real):
+        self.real, self.calls, self.stop_at = real, 0, None
+
+    def __call__(self, *args, **kwargs):
+        self.calls += 1
+        if self.calls == self.stop_at:
+            raise KeyboardInterrupt
+        return self.real(*args, **kwargs)
+
+
+@pytest.fixture
+def render_spy(monkeypatch) -> RenderSpy:
+    """A :class:`RenderSpy` installed in place of evaluate's ``render_views`` for the test."""
+    import importlib
+
+    module = importlib.import_module("senerf.train.evaluate")   # ``senerf.train.evaluate`` is the function
+    spy = RenderSpy(module.render_views)
+    monkeypatch.setattr(module, "render_views", spy)
+    return spy

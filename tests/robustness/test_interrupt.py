@@ -17,8 +17,6 @@
 from __future__ import annotations
 
 import ast
-import functools
-import importlib
 import json
 import os
 import signal
@@ -171,39 +169,31 @@ def test_sigkill_during_selftraining_resumes_after_the_finished_iteration(scene2
 
 
 @pytest.mark.parametrize("iterations", [0, 1])
-def test_an_interrupt_during_evaluation_resumes_at_the_first_view_not_scored(scene24, tmp_path, monkeypatch, capsys,
+def test_an_interrupt_during_evaluation_resumes_at_the_first_view_not_scored(scene24, tmp_path, render_spy, capsys,
                                                                                iterations):
     """Ctrl-C while the test views are rendered (the baseline's evaluation, or iteration 1's): the rerun
     renders only the views not yet scored and ends with the uninterrupted run's figures; the per-view record
     (``checkpoints/iter_K_eval.json``) is gone once metrics.json holds the iteration."""
-    evaluate_module = importlib.import_module("senerf.train.evaluate")
-    argv = lambda out: [*_selftrain_argv(scene24, out)[:-1], "--iterations", str(iterations), "--quiet"]  # noqa
+    def argv(out: Path) -> list[str]:
+        args = _selftrain_argv(scene24, out)
+        args[args.index("--iterations") + 1] = str(iterations)
+        return args
+
     assert main(argv(tmp_path / "ref")) == 0
     reference = json.loads((tmp_path / "ref" / "metrics.json").read_text())
     n_views = len(reference["iterations"][0]["per_view"]["psnr"])
     assert n_views >= 2
-    real, calls = evaluate_module.render_views, []
-
-    def counted(*args, stop_at=None, **kwargs):
-        calls.append(1)
-        if len(calls) == stop_at:
-            raise KeyboardInterrupt
-        return real(*args, **kwargs)
-
-    # the last iteration's first view scored, then the interrupt
-    monkeypatch.setattr(evaluate_module, "render_views",
-                        functools.partial(counted, stop_at=iterations * n_views + 2))
+    render_spy.calls, render_spy.stop_at = 0, iterations * n_views + 2   # the last iteration's first view scored
     out = tmp_path / "run"
     assert main(argv(out)) == 130
     record = out / "checkpoints" / f"iter_{iterations}_eval.json"
     assert sorted(json.loads(record.read_text())["views"]) == ["0"]
-    monkeypatch.setattr(evaluate_module, "render_views", counted)
     if iterations:   # as a kill between metrics.json and the record's removal leaves it: removed on resuming
         (out / "checkpoints" / "iter_0_eval.json").write_text("{}")
-    calls.clear()
+    render_spy.calls, render_spy.stop_at = 0, None
     capsys.readouterr()
     assert main(argv(out)) == 0
-    assert len(calls) == n_views - 1
+    assert render_spy.calls == n_views - 1
     assert not list((out / "checkpoints").glob("*_eval.json"))
     resumed = json.loads((out / "metrics.json").read_text())
     assert [it["iteration"] for it in resumed["iterations"]] == list(range(iterations + 1))

@@ -78,12 +78,10 @@ def test_evaluate_composites_the_ground_truth_on_the_eval_background(tmp_path):
     assert black["per_view"]["psnr"][1] == pytest.approx(10 * math.log10(1 / 0.09), abs=1e-5)
 
 
-def test_an_interrupted_evaluation_resumes_at_its_first_missing_view(tmp_path, monkeypatch):
+def test_an_interrupted_evaluation_resumes_at_its_first_missing_view(tmp_path, render_spy):
     # Catches: finished views rendered again after an interruption (200 views at 400x400 take ~20 min), figures
     # differing from an uninterrupted call's, the interrupted call's seconds lost, a record of another field or
     # of other test views reused, a view whose PNGs were deleted not rendered again.
-    import functools
-    import importlib
     import json
 
     from senerf.data import Scene
@@ -100,25 +98,15 @@ def test_an_interrupted_evaluation_resumes_at_its_first_missing_view(tmp_path, m
     whole = evaluate(field, scene, test_idx, tmp_path / "whole", model, progress=False)
     assert whole["seconds_before"] == 0.0
 
-    evaluate_module = importlib.import_module("senerf.train.evaluate")   # the attribute is the function
-    real, calls = evaluate_module.render_views, []
-
-    def counted(*args, stop_at=None, **kwargs):
-        calls.append(1)
-        if len(calls) == stop_at:
-            raise KeyboardInterrupt
-        return real(*args, **kwargs)
-
-    monkeypatch.setattr(evaluate_module, "render_views", functools.partial(counted, stop_at=3))
     record = tmp_path / "eval.json"
+    render_spy.calls, render_spy.stop_at = 0, 3
     with pytest.raises(KeyboardInterrupt):
         evaluate(field, scene, test_idx, tmp_path / "run", model, progress=False, resume=record)
-    monkeypatch.setattr(evaluate_module, "render_views", counted)
     kept = json.loads(record.read_text())
     assert sorted(kept["views"]) == ["0", "1"] and kept["seconds"] > 0
-    calls.clear()
+    render_spy.calls, render_spy.stop_at = 0, None
     again = evaluate(field, scene, test_idx, tmp_path / "run", model, progress=False, resume=record)
-    assert len(calls) == 2   # views 2 and 3 only
+    assert render_spy.calls == 2   # views 2 and 3 only
     assert again["per_view"] == whole["per_view"] and again["psnr"] == whole["psnr"] and again["ssim"] == whole["ssim"]
     assert again["seconds_before"] == kept["seconds"] and again["seconds"] > kept["seconds"]
     for k in range(4):
@@ -126,15 +114,15 @@ def test_an_interrupted_evaluation_resumes_at_its_first_missing_view(tmp_path, m
         assert (tmp_path / "run" / name).read_bytes() == (tmp_path / "whole" / name).read_bytes()
     # a deleted render is made again; the others are not
     (tmp_path / "run" / "depth_001.png").unlink()
-    calls.clear()
+    render_spy.calls = 0
     assert evaluate(field, scene, test_idx, tmp_path / "run", model, progress=False, resume=record)["per_view"] \
         == whole["per_view"]
-    assert len(calls) == 1 and (tmp_path / "run" / "depth_001.png").is_file()
+    assert render_spy.calls == 1 and (tmp_path / "run" / "depth_001.png").is_file()
     # another field, or other test views: the record is not theirs, every view is rendered
     for other_field, other_idx in ((build_field(model, seed=1).eval(), test_idx), (field, [4, 0, 2, 1])):
-        calls.clear()
+        render_spy.calls = 0
         evaluate(other_field, scene, other_idx, tmp_path / "other", model, progress=False, resume=record)
-        assert len(calls) == 4
+        assert render_spy.calls == 4
 
 
 def test_depth_to_color_near_is_red_far_is_blue_and_empty_fades():
