@@ -16,7 +16,8 @@ from .config import ModelConfig, config_to_dict
 from .metrics import LPIPS_UNAVAILABLE, psnr, ssim
 from .rays import camera_rays, per_view_intrinsics, ray_dist_to_z_depth
 
-__all__ = ["render_views", "evaluate", "evaluation_digest", "eval_images", "depth_to_color", "to_uint8", "write_png"]
+__all__ = ["render_views", "evaluate", "evaluation_digest", "eval_images", "depth_to_color", "to_uint8",
+           "write_png"]
 
 
 def _background(name: str) -> tuple[float, float, float]:
@@ -214,7 +215,7 @@ def evaluate(field, scene, test_idx, out_dir: str | Path | None, model: ModelCon
 
 def evaluation_digest(field, occupancy, model: ModelConfig, scene, test_idx) -> str:
     """SHA-256 naming one evaluation: the field's and the occupancy grid's tensors, the model settings, the
-    test views' indices, cameras and image size (what :func:`evaluate`'s figures depend on)."""
+    test views' indices, cameras (image size included) and photos (what :func:`evaluate`'s figures depend on)."""
     h = hashlib.sha256()
     for module in (field, occupancy):
         if module is None:
@@ -228,8 +229,11 @@ def evaluation_digest(field, occupancy, model: ModelConfig, scene, test_idx) -> 
     h.update(json.dumps(config_to_dict(model), sort_keys=True, default=str).encode())
     h.update(idx.tobytes())
     h.update(np.ascontiguousarray(np.asarray(scene.c2w)[idx], dtype=np.float64).tobytes())
-    for i in idx:
+    for i in idx:   # view by view: no copy of all the test photos
         h.update(repr(scene.intrinsics_all[int(i)]).encode())
+        h.update(np.ascontiguousarray(scene.rgb[int(i)]).tobytes())
+        if scene.alpha is not None:
+            h.update(np.ascontiguousarray(scene.alpha[int(i)]).tobytes())
     return h.hexdigest()
 
 

@@ -82,6 +82,7 @@ def test_an_interrupted_evaluation_resumes_at_its_first_missing_view(tmp_path, r
     # Catches: finished views rendered again after an interruption (200 views at 400x400 take ~20 min), figures
     # differing from an uninterrupted call's, the interrupted call's seconds lost, a record of another field or
     # of other test views reused, a view whose PNGs were deleted not rendered again.
+    import dataclasses
     import json
 
     from senerf.data import Scene
@@ -118,11 +119,18 @@ def test_an_interrupted_evaluation_resumes_at_its_first_missing_view(tmp_path, r
     assert evaluate(field, scene, test_idx, tmp_path / "run", model, progress=False, resume=record)["per_view"] \
         == whole["per_view"]
     assert render_spy.calls == 1 and (tmp_path / "run" / "depth_001.png").is_file()
-    # another field, or other test views: the record is not theirs, every view is rendered
-    for other_field, other_idx in ((build_field(model, seed=1).eval(), test_idx), (field, [4, 0, 2, 1])):
+    # the record now holds all four views: the same evaluation renders nothing (no PNGs asked for), while another
+    # field, other test views or a test photo changed are not its evaluation, and every view is rendered
+    finished = record.read_bytes()
+    edited = dataclasses.replace(scene, rgb=scene.rgb.copy())
+    edited.rgb[3, 5, 5] += 0.01
+    for other_field, other_scene, other_idx, renders in ((field, scene, test_idx, 0),
+                                                         (build_field(model, seed=1).eval(), scene, test_idx, 4),
+                                                         (field, scene, [4, 0, 2, 1], 4), (field, edited, test_idx, 4)):
+        record.write_bytes(finished)
         render_spy.calls = 0
-        evaluate(other_field, scene, other_idx, tmp_path / "other", model, progress=False, resume=record)
-        assert render_spy.calls == 4
+        evaluate(other_field, other_scene, other_idx, None, model, progress=False, resume=record)
+        assert render_spy.calls == renders
 
 
 def test_depth_to_color_near_is_red_far_is_blue_and_empty_fades():
