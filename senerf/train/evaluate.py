@@ -186,14 +186,13 @@ def evaluate(field, scene, test_idx, out_dir: str | Path | None, model: ModelCon
     for k, (p, s) in done.items():
         if out is None or ((out / f"rgb_{k:03d}.png").is_file() and (out / f"depth_{k:03d}.png").is_file()):
             psnrs[k], ssims[k] = p, s
-    views = range(test_idx.size)
-    if progress:
+    views = [k for k in range(test_idx.size) if psnrs[k] is None]
+    if progress:   # a resumed evaluation's bar starts at the views already scored, so its rate and ETA are its own
         from tqdm.auto import tqdm
 
-        views = tqdm(views, desc="evaluate", unit="view", dynamic_ncols=True)
+        views = tqdm(views, desc="evaluate", unit="view", dynamic_ncols=True, total=test_idx.size,
+                     initial=test_idx.size - len(views))
     for k in views:
-        if psnrs[k] is not None:
-            continue
         i = int(test_idx[k])
         img = render_views(field, model, scene.intrinsics_all[i], scene.c2w[i], occupancy=occupancy,
                            chunk=chunk, device=device)
