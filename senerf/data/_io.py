@@ -231,8 +231,8 @@ def _read_pillow(path: Path, field: str, file: Path) -> np.ndarray:
 
 
 def _tiff_bits(im) -> tuple:
-    """A TIFF's BitsPerSample tag (258), as a tuple; empty when absent."""
-    bits = getattr(im, "tag_v2", {}).get(258, ())
+    """An open Pillow TIFF's BitsPerSample tag (258), as a tuple; empty when absent."""
+    bits = im.tag_v2.get(258, ())
     return tuple(bits) if isinstance(bits, (tuple, list)) else (bits,)
 
 
