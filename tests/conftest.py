@@ -45,9 +45,9 @@ def fern_dir(shared_data: Path) -> Path:
     return path
 
 
-class RenderSpy:
-    """Counts the calls of ``senerf.train.evaluate.render_views`` (one per test view :func:`evaluate` renders);
-    with ``stop_at = n`` the n-th call raises KeyboardInterrupt instead, as a Ctrl-C mid-evaluation."""
+class CallSpy:
+    """Counts the calls of the function ``real`` it stands in for; with ``stop_at = n`` the n-th call raises
+    KeyboardInterrupt instead, as a Ctrl-C at that point (e.g. mid-evaluation, mid-labelling)."""
 
     def __init__(self, real):
         self.real, self.calls, self.stop_at = real, 0, None
@@ -60,11 +60,23 @@ class RenderSpy:
 
 
 @pytest.fixture
-def render_spy(monkeypatch) -> RenderSpy:
-    """A :class:`RenderSpy` installed in place of evaluate's ``render_views`` for the test."""
+def render_spy(monkeypatch) -> CallSpy:
+    """A :class:`CallSpy` installed in place of evaluate's ``render_views`` (one call per test view
+    :func:`senerf.train.evaluate` renders) for the test."""
     import importlib
 
     module = importlib.import_module("senerf.train.evaluate")   # ``senerf.train.evaluate`` is the function
-    spy = RenderSpy(module.render_views)
+    spy = CallSpy(module.render_views)
     monkeypatch.setattr(module, "render_views", spy)
+    return spy
+
+
+@pytest.fixture
+def similarity_spy(monkeypatch) -> CallSpy:
+    """A :class:`CallSpy` installed in place of the self-training controller's ``view_similarity`` (one call per
+    pseudo view :func:`senerf.selftrain.estimate_reliability` labels) for the test."""
+    import senerf.selftrain.controller as controller_mod
+
+    spy = CallSpy(controller_mod.view_similarity)
+    monkeypatch.setattr(controller_mod, "view_similarity", spy)
     return spy

@@ -17,9 +17,11 @@ Outputs under ``out_dir`` (DESIGN.md): ``iter_K/test/`` (``senerf.train.evaluate
 (``rgb_XXX.png`` teacher render, ``similarity_XXX.png`` grey = max similarity clipped to [0, 1],
 ``mask_XXX.png``: white reliable, blue unreliable with a prior target, black unreliable without one, grey
 background), ``metrics.json`` (atomic, after every iteration) and ``checkpoints/``: ``teacher.pt``
-(the finished iteration's field, atomic), the trainer's own ``iter_K_train.pt`` and ``scene_files.json``
-(digests of the scene files the run reads).  A killed run resumes from the last finished iteration (and inside
-an iteration from the trainer's checkpoint); everything in an iteration is seeded from ``(seed, K)``, so the
+(the finished iteration's field, atomic), the trainer's own ``iter_K_train.pt``, ``scene_files.json``
+(digests of the scene files the run reads), and while iteration K runs ``iter_K_labels/`` (each labelled pseudo
+view, :mod:`senerf.selftrain.labelrecord`) and ``iter_K_eval.json`` (each scored test view).  A killed run resumes
+from the last finished iteration (and inside an iteration from the labelled views and the trainer's checkpoint,
+without labelling again); everything in an iteration is seeded from ``(seed, K)``, so the
 resumed run repeats the same pseudo views.  A folder whose run read other bytes from the scene's files is not
 resumed (:func:`senerf.data.scene_file_digests`, as ``senerf-fit`` checks its ``run.json``).
 
@@ -32,6 +34,7 @@ from __future__ import annotations
 import hashlib
 import json
 import math
+import shutil
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -48,6 +51,7 @@ from ..train import (atomic_write_text, build_field, camera_rays, config_to_dict
                      metrics_document, render_views, save_checkpoint, settings_differences, train_field, write_png)
 from .distill import DistillationLoss, DistillConfig, PseudoRays, prior_weights, unified_prior_weights
 from .features import FEATURE_NAMES, features_memory_problem, known_view_features, make_feature_extractor
+from .labelrecord import LABELLED_VIEW_ARRAYS, labelling_digest, read_labelled_view, write_labelled_view
 from .reliability import (THRESHOLD_KINDS, gt_reliable_mask, mask_quality, resolve_threshold, threshold_weights,
                           view_similarity)
 
@@ -180,6 +184,8 @@ class PseudoLabels:
             ``SelfTrainConfig.empty_opacity``; all False when it is 0).  A subset of ``weights > 0``; the one
             place this test is made, by whichever producer (features or oracle) made the labels.
         intrinsics: the ``Intrinsics`` the views were rendered with: one shared, or a tuple of P.
+        seconds_recorded: seconds the views read back from a labelling record took when they were labelled
+            (``estimate_reliability``'s ``resume``; 0 without one), for the iteration's time.
     """
 
     c2w: np.ndarray
@@ -194,6 +200,7 @@ class PseudoLabels:
     neighbour: np.ndarray
     empty: np.ndarray
     intrinsics: "geometry.Intrinsics | tuple[geometry.Intrinsics, ...]"
+    seconds_recorded: float = 0.0
 
     def __post_init__(self) -> None:
         if self.empty.shape != self.weights.shape or self.empty.dtype != bool:
@@ -214,9 +221,9 @@ known_images = eval_images
 
 
 def estimate_reliability(teacher, occupancy, model, scene, train_idx, pseudo_c2w: np.ndarray, extractor,
-                         cfg: SelfTrainConfig, alpha: float, known_features: np.ndarray | None = None,
+                         cfg: SelfTrainConfig, alpha: float, known_features=None,
                          device=None, renders: tuple[dict, dict] | None = None,
-                         pseudo_intrinsics=None, progress: bool = False) -> PseudoLabels:
+                         pseudo_intrinsics=None, progress: bool = False, resume=None) -> PseudoLabels:
     """Render ``pseudo_c2w (P, 4, 4)`` with the teacher and estimate every pixel's reliability.
 
     Args:
@@ -226,14 +233,22 @@ def estimate_reliability(teacher, occupancy, model, scene, train_idx, pseudo_c2w
         extractor: a :class:`~senerf.selftrain.features.FeatureExtractor`.
         cfg: thresholds, occlusion tolerance, kernel.
         alpha: the adaptive threshold's alpha for this iteration.
-        known_features: (m, H, W, C) features of :func:`known_images` (an array or ``extractor.lazy(...)``);
-            computed with :func:`known_view_features` when None.
+        known_features: (m, H, W, C) features of :func:`known_images` (an array or ``extractor.lazy(...)``), or a
+            function of no arguments returning them (called only when a view is labelled here, not read from
+            ``resume``); computed with :func:`known_view_features` when None.
         renders: ``(known, pseudo)`` teacher renders (``senerf.train.render_views`` dicts of the known and the
-            pseudo cameras) to reuse; rendered when None.
+            pseudo cameras) to reuse; rendered when None (the pseudo views one at a time, as each is labelled).
         pseudo_intrinsics: the pseudo cameras' ``Intrinsics`` (one, or a sequence of P); default image 0's
             (the controller passes each pseudo view its source input's, see ``_sample_pseudo_poses``).
             The known views always use their own (``scene.intrinsics_all``).
-        progress: tqdm bars over the teacher's renders and the pseudo views' features and warps.
+        progress: tqdm bars over the known views' renders and the pseudo views' labelling (render, features,
+            warps).
+        resume: a folder recording each labelled view (its render, similarity and foreground;
+            :mod:`senerf.selftrain.labelrecord`) under a digest of the teacher, the model, the known views, the
+            pseudo cameras, the extractor and the occlusion settings.  A call that finds views recorded there
+            with the same digest labels only the others and returns what one uninterrupted call returns (the
+            recorded views' seconds in ``PseudoLabels.seconds_recorded``).  ``known_features`` are taken to be
+            the extractor's of :func:`known_images`.  The caller deletes the folder once it is done with it.
     Returns:
         :class:`PseudoLabels`.
     """
@@ -241,35 +256,74 @@ def estimate_reliability(teacher, occupancy, model, scene, train_idx, pseudo_c2w
     intr = scene.intrinsics if pseudo_intrinsics is None else pseudo_intrinsics
     known_intr = [scene.intrinsics_all[i] for i in train_idx]
     known_c2w = np.asarray(scene.c2w[train_idx], dtype=np.float64)
-    if known_features is None:
-        known_features = known_view_features(extractor, known_images(scene, train_idx, model))
-    if renders is None:
-        renders = (render_views(teacher, model, known_intr, known_c2w, occupancy=occupancy, device=device,
-                                progress=progress),
-                   render_views(teacher, model, intr, pseudo_c2w, occupancy=occupancy, device=device,
-                                progress=progress))
-    known, pseudo = renders
-    if known["acc"].shape[0] != train_idx.size or pseudo["acc"].shape[0] != pseudo_c2w.shape[0]:
-        raise ValueError("renders do not match the known / pseudo cameras")
-    known_z = np.where(known["acc"] >= cfg.opacity_threshold, known["z_depth"], np.inf)
     n = pseudo_c2w.shape[0]
     pseudo_k = (intr,) * n if isinstance(intr, geometry.Intrinsics) else tuple(intr)
-    sims = np.empty(pseudo["acc"].shape, np.float32)
-    fg = np.empty(pseudo["acc"].shape, bool)
-    views = range(n)
-    if progress:
+    if renders is not None and (renders[0]["acc"].shape[0] != train_idx.size or renders[1]["acc"].shape[0] != n):
+        raise ValueError("renders do not match the known / pseudo cameras")
+    size = pseudo_k[0].size if n else (0, 0)
+    digest = None if resume is None else labelling_digest(teacher, occupancy, model, scene, train_idx, pseudo_c2w,
+                                                           pseudo_k, extractor, cfg.opacity_threshold,
+                                                           cfg.occlusion_rel_tol)
+    views = {name: np.empty((n, *size, 3) if name == "rgb" else (n, *size),
+                            bool if name == "foreground" else np.float32) for name in LABELLED_VIEW_ARRAYS}
+    seconds_recorded = 0.0
+    todo = []
+    for i in range(n):
+        rec = None if resume is None else read_labelled_view(resume, i, digest, size)
+        if rec is None:
+            todo.append(i)
+            continue
+        for name in LABELLED_VIEW_ARRAYS:
+            views[name][i] = rec[name]
+        seconds_recorded += rec["seconds"]
+    if todo:
+        known_z = _known_z_depth(teacher, occupancy, model, known_intr, known_c2w, cfg, device, renders, progress)
+        if callable(known_features):
+            known_features = known_features()
+        if known_features is None:
+            known_features = known_view_features(extractor, known_images(scene, train_idx, model))
+    bar = todo
+    if progress:   # a resumed labelling's bar starts at the views read back, so its rate and ETA are its own
         from tqdm.auto import tqdm
 
-        views = tqdm(views, desc="reliability", unit="view", dynamic_ncols=True)
-    for i in views:
-        feats = extractor(np.clip(pseudo["rgb"][i:i + 1], 0.0, 1.0))[0]
-        res = view_similarity(feats, pseudo["z_depth"][i], pseudo["acc"][i], pseudo_k[i], pseudo_c2w[i],
+        bar = tqdm(todo, desc="labelling", unit="view", dynamic_ncols=True, total=n, initial=n - len(todo))
+    for i in bar:
+        t0 = time.perf_counter()
+        if renders is None:
+            view = {name: a[0] for name, a in render_views(teacher, model, pseudo_k[i], pseudo_c2w[i],
+                                                           occupancy=occupancy, device=device).items()}
+        else:
+            view = {name: renders[1][name][i] for name in ("rgb", "z_depth", "acc")}
+        feats = extractor(np.clip(view["rgb"][None], 0.0, 1.0))[0]
+        res = view_similarity(feats, view["z_depth"], view["acc"], pseudo_k[i], pseudo_c2w[i],
                               known_features, known_z, known_intr, known_c2w,
                               opacity_threshold=cfg.opacity_threshold, rel_tol=cfg.occlusion_rel_tol)
-        sims[i], fg[i] = res.similarity, res.foreground
+        view.update(similarity=res.similarity, foreground=res.foreground)
+        for name in LABELLED_VIEW_ARRAYS:
+            views[name][i] = view[name]
+        if resume is not None:
+            write_labelled_view(resume, i, digest, view, time.perf_counter() - t0)
+    return _labels_from_views(views, pseudo_c2w, intr, cfg, alpha, seconds_recorded)
+
+
+def _known_z_depth(teacher, occupancy, model, known_intr, known_c2w, cfg: SelfTrainConfig, device, renders,
+                   progress: bool) -> np.ndarray:
+    """(m, H, W) the teacher's z-depth of the known views, ``inf`` where it renders no surface (the occlusion
+    buffer of :func:`view_similarity`); from ``renders[0]`` when given, else rendered."""
+    known = (renders[0] if renders is not None else
+             render_views(teacher, model, known_intr, known_c2w, occupancy=occupancy, device=device,
+                          progress=progress))
+    return np.where(known["acc"] >= cfg.opacity_threshold, known["z_depth"], np.inf)
+
+
+def _labels_from_views(views: dict, pseudo_c2w: np.ndarray, intr, cfg: SelfTrainConfig, alpha: float,
+                       seconds_recorded: float) -> PseudoLabels:
+    """:class:`PseudoLabels` from every pseudo view's render, similarity and foreground (``views``: the
+    :data:`LABELLED_VIEW_ARRAYS`, each ``(P, H, W, ...)``): the threshold over all of them, weights, prior."""
+    sims, fg, acc = views["similarity"], views["foreground"], views["acc"]
     tau = resolve_threshold(cfg.threshold, sims[fg], alpha=alpha, tau=cfg.fixed_tau)
     weights = threshold_weights(sims, fg, cfg.threshold, tau=tau, beta=cfg.beta)
-    empty = _empty_pixels(pseudo["acc"], cfg.empty_opacity)
+    empty = _empty_pixels(acc, cfg.empty_opacity)
     weights = np.where(empty, np.float32(1.0), weights).astype(np.float32)
     if cfg.threshold == "unified":
         neighbour, has = unified_prior_weights(sims, fg, cfg.kernel_size, cfg.kernel_std)
@@ -277,9 +331,9 @@ def estimate_reliability(teacher, occupancy, model, scene, train_idx, pseudo_c2w
     else:
         neighbour, has = prior_weights(weights > 0, cfg.kernel_size, cfg.kernel_std)
         prior = (fg & has & (weights <= 0)).astype(np.float32)
-    return PseudoLabels(c2w=pseudo_c2w, rgb=pseudo["rgb"], z_depth=pseudo["z_depth"], acc=pseudo["acc"],
+    return PseudoLabels(c2w=pseudo_c2w, rgb=views["rgb"], z_depth=views["z_depth"], acc=acc,
                         similarity=sims, foreground=fg, tau=tau, weights=weights, prior=prior,
-                        neighbour=neighbour, empty=empty, intrinsics=intr)
+                        neighbour=neighbour, empty=empty, intrinsics=intr, seconds_recorded=seconds_recorded)
 
 
 def _empty_pixels(acc: np.ndarray, empty_opacity: float) -> np.ndarray:
@@ -565,6 +619,19 @@ def _load_teacher(path: Path, model, cfg_train, settings: dict, device):
     return field, occupancy, iteration, json.loads(state.get("iterations_json", "[]"))
 
 
+def _known_features_once(memo: list, extractor, scene, train_idx, model):
+    """The known views' features, computed on the first call and kept in ``memo`` (a list) for the later ones."""
+    if not memo:
+        memo.append(known_view_features(extractor, known_images(scene, train_idx, model)))
+    return memo[0]
+
+
+def _remove_iteration_records(ckpt_dir: Path, k: int) -> None:
+    """Delete iteration ``k``'s evaluation and labelling records (once ``metrics.json`` holds the iteration)."""
+    (ckpt_dir / f"iter_{k}_eval.json").unlink(missing_ok=True)
+    shutil.rmtree(ckpt_dir / f"iter_{k}_labels", ignore_errors=True)
+
+
 def run_selftraining(scene, train_idx, test_idx, model, train_cfg, cfg: SelfTrainConfig, out_dir,
                      student_cfg=None, command: list | None = None, extra_config: dict | None = None,
                      progress: bool = True, echo: Callable[[str], None] = print,
@@ -627,8 +694,8 @@ def run_selftraining(scene, train_idx, test_idx, model, train_cfg, cfg: SelfTrai
         metrics["iterations"] = [it for it in rows if it["iteration"] <= done]
         seconds_before = float(sum(it.get("seconds", 0.0) for it in metrics["iterations"]))
         start = done + 1
-        for k in range(start):   # a kill between metrics.json and the record's removal left it behind
-            (ckpt_dir / f"iter_{k}_eval.json").unlink(missing_ok=True)
+        for k in range(start):   # a kill between metrics.json and the records' removal left them behind
+            _remove_iteration_records(ckpt_dir, k)
         if done >= cfg.iterations:   # finished (perhaps beyond what is asked now): reported as it is, untouched
             echo(f"selftrain: {out} holds iterations 0-{done} already ({cfg.iterations} asked for); nothing to train")
             stored = finished_metrics(out, done)   # None: killed before its metrics.json, rebuilt below
@@ -642,11 +709,12 @@ def run_selftraining(scene, train_idx, test_idx, model, train_cfg, cfg: SelfTrai
             _record_scene_files(files_record, files_now)
     rays = RayBatchSource.from_scene(scene, train_idx, model, device)
     extractor = None
-    known_feats = None
+    known_feats = []   # the known views' features, computed once per run when a view is first labelled
     carried = 0.0  # training and evaluation seconds of interrupted earlier calls, from what they recorded
     for k in range(start, cfg.iterations + 1):
         t_it = time.perf_counter()
         reliable_fraction = None
+        labelled_before = 0.0   # seconds of pseudo views labelled by an interrupted earlier call
         tcfg = train_cfg if k == 0 else student_cfg
         # a fresh field (not a copy of the teacher) from the same initialisation seed in every iteration:
         # on 3 views the initialisation alone moved test PSNR by 1 dB (lego Extreme, 200 steps, seeds 0
@@ -660,7 +728,6 @@ def run_selftraining(scene, train_idx, test_idx, model, train_cfg, cfg: SelfTrai
             if extractor is None and cfg.reliability == "features":
                 extractor = make_feature_extractor(cfg.features, **(
                     {"normalize_layers": cfg.normalize_layers} if cfg.features == "vgg19" else {}))
-                known_feats = known_view_features(extractor, known_images(scene, train_idx, model))
             if cfg.reliability == "oracle":
                 pseudo_idx = dataset_pseudo_views(scene, train_idx, test_idx, cfg.pseudo_range(k),
                                                   cfg.n_pseudo_per_input * train_idx.size)
@@ -668,10 +735,13 @@ def run_selftraining(scene, train_idx, test_idx, model, train_cfg, cfg: SelfTrai
                 pseudo_c2w = labels.c2w
             else:
                 pseudo_c2w, pseudo_k = _sample_pseudo_poses(scene, train_idx, cfg, k)
-                labels = estimate_reliability(teacher, occupancy, model, scene, train_idx, pseudo_c2w, extractor,
-                                              cfg, cfg.alpha(k), known_features=known_feats, device=device,
-                                              pseudo_intrinsics=pseudo_k, progress=progress)
+                labels = estimate_reliability(
+                    teacher, occupancy, model, scene, train_idx, pseudo_c2w, extractor, cfg, cfg.alpha(k),
+                    known_features=lambda: _known_features_once(known_feats, extractor, scene, train_idx, model),
+                    device=device, pseudo_intrinsics=pseudo_k, progress=progress,
+                    resume=ckpt_dir / f"iter_{k}_labels")
             reliable_fraction = labels.reliable_fraction
+            labelled_before = labels.seconds_recorded
             _write_pseudo_pngs(out / f"iter_{k}" / "pseudo", labels)
             echo(f"selftrain: iteration {k}: {pseudo_c2w.shape[0]} pseudo views within "
                  f"{cfg.pseudo_range(k):g} deg, {_labels_text(labels, cfg)}")
@@ -686,15 +756,15 @@ def run_selftraining(scene, train_idx, test_idx, model, train_cfg, cfg: SelfTrai
         eval_record = ckpt_dir / f"iter_{k}_eval.json"
         ev = evaluate(teacher, scene, test_idx, out / f"iter_{k}" / "test", model, occupancy=occupancy,
                       device=device, progress=progress, resume=eval_record)
-        carried += ev["seconds_before"]
+        carried += ev["seconds_before"] + labelled_before
         rf = None if reliable_fraction is None or math.isnan(reliable_fraction) else float(reliable_fraction)
         metrics["iterations"].append(iteration_row(
-            k, ev, rf, time.perf_counter() - t_it + result.seconds_before + ev["seconds_before"]))
+            k, ev, rf, time.perf_counter() - t_it + result.seconds_before + ev["seconds_before"] + labelled_before))
         _save_teacher(teacher_path, teacher, occupancy, k, settings, metrics["iterations"])
         _record_scene_files(files_record, files_now)
         metrics["seconds_total"] = seconds_before + carried + time.perf_counter() - t_run
         atomic_write_text(metrics_path, json.dumps(metrics, indent=1))
-        eval_record.unlink(missing_ok=True)
+        _remove_iteration_records(ckpt_dir, k)
         echo(f"selftrain: iteration {k}: test PSNR {ev['psnr']:.2f} dB, SSIM {ev['ssim']:.3f}")
     metrics["seconds_total"] = seconds_before + carried + time.perf_counter() - t_run
     atomic_write_text(metrics_path, json.dumps(metrics, indent=1))

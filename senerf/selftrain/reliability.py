@@ -8,10 +8,11 @@ that leave the image, land behind the camera or are occluded (``reproject``'s ``
 pixel's similarity is the maximum over valid known views, ``NO_MATCH = -1.0`` when there is none.
 
 Choices the paper leaves open, made here:
-* **Background** pseudo pixels (teacher opacity ``< opacity_threshold``, default 0.5) are *ignored*: they do
-  not enter the similarity distribution of the adaptive threshold, and they are neither reliable (no
-  colour/geometry distillation) nor unreliable (no prior target); they also never serve as reliable
-  neighbours of the prior.
+* **Background** pseudo pixels (teacher opacity ``< opacity_threshold``, default 0.5) are *ignored* here:
+  they do not enter the similarity distribution of the adaptive threshold, and these weights make them
+  neither reliable nor unreliable (no prior target).  The controller then labels those the teacher renders
+  nearly empty (opacity ``< SelfTrainConfig.empty_opacity``, default 0.2; none at 0) reliable empty space,
+  and as reliable pixels they also serve as the prior's neighbours (with the teacher's near-zero density).
 * **Thresholds** (``threshold_weights``): ``'adaptive'`` ``tau`` = the ``(1 - alpha)`` quantile
   (``numpy.quantile``, linear interpolation) of all pseudo views' foreground similarities of the scene,
   reliable iff ``s > tau``; ``'fixed'`` reliable iff ``s > tau`` (0.6); ``'unified'`` soft weight

@@ -202,6 +202,48 @@ def test_an_interrupt_during_evaluation_resumes_at_the_first_view_not_scored(sce
             assert a[key] == b[key], (a["iteration"], key)
 
 
+@pytest.mark.parametrize("where", ["labelling", "student"])
+def test_an_interrupt_in_iteration_1_resumes_without_labelling_again(scene24, tmp_path, similarity_spy, monkeypatch,
+                                                                     where):
+    """Ctrl-C while iteration 1 labels its pseudo views (at the third), or while its student trains: the rerun
+    labels only the views not yet labelled (none, for the student) and ends with the uninterrupted run's figures;
+    the labelling record (``checkpoints/iter_1_labels/``) is gone once metrics.json holds the iteration.  Before,
+    the rerun labelled all 24 views again."""
+    import senerf.selftrain.controller as controller_mod
+
+    assert main(_selftrain_argv(scene24, tmp_path / "ref")) == 0
+    reference = json.loads((tmp_path / "ref" / "metrics.json").read_text())
+    n_pseudo = similarity_spy.calls
+    assert n_pseudo == 24   # 8 per input view
+    similarity_spy.calls = 0
+    students = controller_mod.train_field
+    if where == "labelling":
+        similarity_spy.stop_at = 3
+    else:
+        def train_then_stop(field, rays, cfg, extra_loss=None, **kwargs):
+            if extra_loss is not None:   # iteration 1's student, labelled and about to train
+                raise KeyboardInterrupt
+            return students(field, rays, cfg, extra_loss=extra_loss, **kwargs)
+
+        monkeypatch.setattr(controller_mod, "train_field", train_then_stop)
+    out = tmp_path / "run"
+    assert main(_selftrain_argv(scene24, out)) == 130
+    record = out / "checkpoints" / "iter_1_labels"
+    n_recorded = 2 if where == "labelling" else n_pseudo
+    assert len(list(record.glob("view_*.npz"))) == n_recorded
+    (out / "checkpoints" / "iter_0_labels").mkdir()   # as a kill after iteration 0's metrics leaves it
+    monkeypatch.setattr(controller_mod, "train_field", students)
+    similarity_spy.calls, similarity_spy.stop_at = 0, None
+    assert main(_selftrain_argv(scene24, out)) == 0
+    assert similarity_spy.calls == n_pseudo - n_recorded
+    assert not list((out / "checkpoints").glob("iter_*_labels"))
+    resumed = json.loads((out / "metrics.json").read_text())
+    assert [it["iteration"] for it in resumed["iterations"]] == [0, 1]
+    for a, b in zip(reference["iterations"], resumed["iterations"]):
+        for key in ("psnr", "ssim", "per_view", "reliable_fraction"):
+            assert a[key] == b[key], (a["iteration"], key)
+
+
 # calls that write files; the atomic helpers are the only places allowed to use them
 _WRITERS = {"write_text", "write_bytes", "imwrite", "savefig", "save", "dump", "write", "open"}
 _ALLOWED = {

@@ -72,20 +72,6 @@ def test_config_checks_and_schedules():
         cfg.iterations = 5  # frozen
 
 
-@pytest.fixture(scope="module")
-def tiny_scene(tmp_path_factory):
-    pytest.importorskip("trimesh")
-    from senerf.data import load_scene
-    from senerf.procedural import export_blender_scene
-
-    root = tmp_path_factory.mktemp("tiny") / "scene"
-    try:
-        export_blender_scene(root, n_train=4, n_val=1, n_test=1, width=32, height=32, n_one_side=3)
-    except Exception as exc:  # pragma: no cover - missing ray caster
-        pytest.skip(f"procedural scene unavailable: {exc}")
-    return load_scene(root)
-
-
 def test_tiny_end_to_end_with_resume(tiny_scene, tmp_path, monkeypatch):
     from senerf.train import TrainConfig, choose_model
 
@@ -236,22 +222,6 @@ def test_dataset_pseudo_views_nearest_held_out_within_range():
     assert pick.tolist() == [5, 3, 4]
     with pytest.raises(InputError):
         controller_mod.dataset_pseudo_views(scene, [0, 1], [2, 3, 4, 5, 6], 10.0, 4)
-
-
-@pytest.fixture(scope="module")
-def tiny_teacher(tiny_scene):
-    """A 10-step teacher on three views of the tiny scene: (train_idx, model, TrainResult)."""
-    import torch
-
-    from senerf.train import RayBatchSource, TrainConfig, build_field, choose_model, train_field
-
-    train_idx = tiny_scene.splits["train"][:3]
-    model = choose_model(tiny_scene, train_idx, {"n_samples": 16, "resolution": 32, "occupancy_resolution": 16},
-                         echo=lambda s: None)
-    tcfg = TrainConfig(steps=10, batch_rays=128, warmup_steps=2, checkpoint_every=0, occupancy_warmup=4,
-                       occupancy_every=4)
-    rays = RayBatchSource.from_scene(tiny_scene, train_idx, model, torch.device("cpu"))
-    return train_idx, model, train_field(build_field(model), rays, tcfg, progress=False)
 
 
 def test_oracle_masks_are_the_colour_error(tiny_scene, tiny_teacher):
@@ -481,7 +451,7 @@ def test_known_views_keep_their_own_intrinsics(monkeypatch):
         labels = controller_mod.estimate_reliability(None, None, None, scene, [1, 2], np.stack([np.eye(4)] * 2),
                                                      extractor, cfg, 0.15,
                                                      known_features=np.zeros((2, h, w, 2), np.float32))
-        assert seen["render"] == [expect, k0]          # known views, then the pseudo views
+        assert seen["render"] == [expect, k0, k0]      # known views, then the pseudo views one at a time
         assert seen["known_k"] == expect and seen["pseudo_k"] == k0
         assert labels.intrinsics == k0
 
@@ -560,10 +530,10 @@ def test_the_pseudo_views_labelling_shows_a_progress_bar(monkeypatch, capsys):
     sims, acc = _two_views_with_a_bright_background()
     cfg = SelfTrainConfig(features="daisy", threshold="adaptive", empty_opacity=0.0)
     quiet = _canned_labels(monkeypatch, sims, acc, cfg, alpha=0.25)
-    assert "reliability" not in capsys.readouterr().err
+    assert "labelling" not in capsys.readouterr().err
     shown = _canned_labels(monkeypatch, sims, acc, cfg, alpha=0.25, progress=True)
     err = capsys.readouterr().err
-    assert "reliability" in err and f"{len(sims)}/{len(sims)}" in err
+    assert "labelling" in err and f"{len(sims)}/{len(sims)}" in err
     np.testing.assert_array_equal(shown.weights, quiet.weights)
 
 
@@ -604,7 +574,7 @@ def test_the_progress_setting_reaches_the_labelling_and_its_renders(tiny_scene, 
     controller_mod.estimate_reliability(build_field(model), None, model, scene, train_idx, pseudo_c2w,
                                         make_feature_extractor("daisy"), SelfTrainConfig(features="daisy"), 0.15,
                                         progress=True)
-    assert rendered == [True, True]   # the known views' render and the pseudo views'
+    assert rendered == [True, None]   # the known views' render has its bar; the pseudo view is the labelling's
 
 
 def test_one_training_view_is_refused_before_the_teacher_trains(tiny_scene, tmp_path):
