@@ -10,10 +10,17 @@ wall-clock budget (``steps x run seconds / iteration-0 seconds`` steps); reports
 gains and wall time
 (target: final >= iteration 0 + 1.5 dB and >= long baseline + 1.0 dB, whole run <= 15 min on 2 cores).
 
+``labelling``: the cost of labelling pseudo views, per phase (teacher render, features, similarity), on
+``--n-pseudo`` pseudo views of iteration 1 from a ``--steps`` teacher, each fast path against its peer measured
+in the same run on the same views: ``view_similarity(foreground_only=True)`` (what the controller calls) against
+scoring every pixel, and ``bilinear_sample`` against ``bilinear_sample_reference`` on the same lookups; both
+pairs must agree exactly on what the labels use (checked, and printed).
+
 Usage::
 
     python benchmarks/bench_selftrain.py masks --steps 600 --out /tmp/bench_st_masks
     python benchmarks/bench_selftrain.py e2e --steps 600 --iterations 3 --out /tmp/bench_st_e2e
+    python benchmarks/bench_selftrain.py labelling --downscale 1 --steps 300 --n-pseudo 2 --out /tmp/bench_st_label
 
 Results are printed and written to ``OUT/bench_<mode>.json``.
 """
@@ -157,9 +164,77 @@ def bench_e2e(args) -> dict:
                 long_baseline_seconds=t_long, n_test_views=len(test_idx))
 
 
+def bench_labelling(args) -> dict:
+    from senerf.selftrain import SelfTrainConfig, make_feature_extractor
+    from senerf.selftrain import reliability as rel
+    from senerf.selftrain.controller import _sample_pseudo_poses, known_images
+    from senerf.train import RayBatchSource, build_field, render_views, train_field
+
+    scene, train_idx, _, model, tcfg = _load(args)
+    rays = RayBatchSource.from_scene(scene, train_idx, model, tcfg.device)
+    teacher = train_field(build_field(model, seed=tcfg.seed, steps=tcfg.steps), rays, tcfg, progress=False)
+    field, occ = teacher.field.eval(), teacher.occupancy
+    cfg = SelfTrainConfig(features=args.features)
+    extractor = make_feature_extractor(args.features)
+    known_intr = [scene.intrinsics_all[i] for i in train_idx]
+    known_c2w = np.asarray(scene.c2w[train_idx], dtype=np.float64)
+    t = time.perf_counter()
+    known_feats = extractor(known_images(scene, train_idx, model))
+    t_known = time.perf_counter() - t
+    known = render_views(field, model, known_intr, known_c2w, occupancy=occ)
+    known_z = np.where(known["acc"] >= cfg.opacity_threshold, known["z_depth"], np.inf)
+    c2w, pseudo_k = _sample_pseudo_poses(scene, train_idx, cfg, 1)
+    times = {k: 0.0 for k in ("render", "features", "similarity_all", "similarity_foreground",
+                              "bilinear_reference", "bilinear")}
+    lookups = 0
+    fg_share = []
+    for i in range(args.n_pseudo):
+        t = time.perf_counter()
+        view = render_views(field, model, pseudo_k[i], c2w[i], occupancy=occ)
+        times["render"] += time.perf_counter() - t
+        t = time.perf_counter()
+        feats = extractor(np.clip(view["rgb"], 0.0, 1.0))[0]
+        times["features"] += time.perf_counter() - t
+        res = {}
+        for key, only in (("similarity_all", False), ("similarity_foreground", True)):
+            t = time.perf_counter()
+            res[key] = rel.view_similarity(feats, view["z_depth"][0], view["acc"][0], pseudo_k[i], c2w[i],
+                                           known_feats, known_z, known_intr, known_c2w,
+                                           opacity_threshold=cfg.opacity_threshold, rel_tol=cfg.occlusion_rel_tol,
+                                           foreground_only=only)
+            times[key] += time.perf_counter() - t
+        fg = res["similarity_all"].foreground
+        fg_share.append(float(fg.mean()))
+        if not np.array_equal(res["similarity_all"].similarity[fg], res["similarity_foreground"].similarity[fg]):
+            raise AssertionError(f"pseudo view {i}: foreground similarities differ")
+        uv = np.random.default_rng(i).uniform(0.0, known_feats.shape[2], size=(rel._SAMPLE_CHUNK, 2))
+        for key, fn in (("bilinear_reference", rel.bilinear_sample_reference), ("bilinear", rel.bilinear_sample)):
+            t = time.perf_counter()
+            out = fn(known_feats[0], uv)
+            times[key] += time.perf_counter() - t
+            res[key] = out
+        if not np.array_equal(res["bilinear"], res["bilinear_reference"]):
+            raise AssertionError(f"pseudo view {i}: bilinear_sample differs from its reference")
+        lookups += uv.shape[0]
+    n = args.n_pseudo
+    per_view = {k: v / n for k, v in times.items()}
+    ratio_sim = times["similarity_foreground"] / times["similarity_all"]
+    ratio_bil = times["bilinear"] / times["bilinear_reference"]
+    h, w = scene.size
+    print(f"lego {w}x{h}, {args.features}, teacher {tcfg.steps} steps; {n} pseudo views, foreground "
+          f"{100 * np.mean(fg_share):.1f} % of their pixels; known-view features {t_known:.1f} s")
+    print("per pseudo view: " + ", ".join(f"{k} {v:.2f} s" for k, v in per_view.items()))
+    print(f"view_similarity foreground only / every pixel: {ratio_sim:.3f} (same foreground values)")
+    print(f"bilinear_sample / bilinear_sample_reference on {rel._SAMPLE_CHUNK} lookups: {ratio_bil:.3f} (identical)")
+    return dict(mode="labelling", size=[h, w], steps=tcfg.steps, n_pseudo=n, features=args.features,
+                foreground_share=float(np.mean(fg_share)), known_features_seconds=t_known,
+                seconds_per_view=per_view, ratio_similarity_foreground_vs_all=ratio_sim,
+                ratio_bilinear_vs_reference=ratio_bil, bilinear_lookups=lookups)
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("mode", choices=("masks", "e2e"))
+    p.add_argument("mode", choices=("masks", "e2e", "labelling"))
     p.add_argument("--out", default="/tmp/bench_selftrain")
     p.add_argument("--steps", type=int, default=600)
     p.add_argument("--preset", default="fast")
@@ -169,7 +244,8 @@ def main(argv=None) -> int:
     p.add_argument("--n-eval", type=int, default=12, help="masks: held-out poses used as pseudo views")
     p.add_argument("--max-error", type=float, default=0.1, help="masks: GT-reliable if mean |dRGB| below")
     p.add_argument("--iterations", type=int, default=3)
-    p.add_argument("--n-pseudo", type=int, default=8, help="e2e: pseudo views per input view")
+    p.add_argument("--n-pseudo", type=int, default=8,
+                   help="e2e: pseudo views per input view; labelling: pseudo views timed")
     p.add_argument("--batch-reliable", type=int, default=512, help="e2e: reliable pseudo rays per step")
     p.add_argument("--batch-prior", type=int, default=128, help="e2e: prior pseudo rays per step")
     p.add_argument("--features", default="vgg19")
@@ -178,7 +254,7 @@ def main(argv=None) -> int:
     args = p.parse_args(argv)
     torch.set_num_threads(max(1, os.cpu_count() or 1))
     Path(args.out).mkdir(parents=True, exist_ok=True)
-    result = bench_masks(args) if args.mode == "masks" else bench_e2e(args)
+    result = dict(masks=bench_masks, e2e=bench_e2e, labelling=bench_labelling)[args.mode](args)
     from datetime import datetime, timezone
 
     from senerf.bench.machine import git_commit, machine_info

@@ -14,7 +14,8 @@ Iteration 0 trains the baseline teacher on the sparse views (photometric loss on
    trainer's ``extra_loss`` hook), then becomes the teacher.
 
 Outputs under ``out_dir`` (DESIGN.md): ``iter_K/test/`` (``senerf.train.evaluate``), ``iter_K/pseudo/``
-(``rgb_XXX.png`` teacher render, ``similarity_XXX.png`` grey = max similarity clipped to [0, 1],
+(``rgb_XXX.png`` teacher render, ``similarity_XXX.png`` grey = max similarity clipped to [0, 1], black on
+the background, which is not scored,
 ``mask_XXX.png``: white reliable, blue unreliable with a prior target, black unreliable without one, grey
 background), ``metrics.json`` (atomic, after every iteration) and ``checkpoints/``: ``teacher.pt``
 (the finished iteration's field, atomic), the trainer's own ``iter_K_train.pt``, ``scene_files.json``
@@ -83,7 +84,10 @@ class SelfTrainConfig(DistillConfig):
         alpha0, alpha_step: adaptive threshold: ``tau`` = (1 - alpha) quantile, alpha grows per iteration
             (paper: 0.15, 0.05; alpha0 = 0.3 measured +0.00 ± 0.13 dB, see :class:`DistillConfig` for how).
         fixed_tau: the fixed threshold.
-        beta: the unified weighting's sigmoid slope.
+        beta: the unified weighting's sigmoid slope.  The 'unified' ablation keeps the three loss weights of
+            the hard thresholds (``lambda_color``, ``lambda_geometry``, ``lambda_prior``); the paper's unified
+            objective (its appendix) writes none, so its ``(1 - s)`` neighbour term weighs 1 there, 200 times
+            ``lambda_prior``.  Its measured -0.33 dB (BENCHMARKS.md) is of this variant.
         opacity_threshold: teacher opacity below which a pixel is background (ignored).
         occlusion_rel_tol: relative depth slack of the occlusion test.
         batch_reliable, batch_prior, batch_empty, lambda_color, lambda_geometry, lambda_prior, geometry_target,
@@ -297,7 +301,8 @@ def estimate_reliability(teacher, occupancy, model, scene, train_idx, pseudo_c2w
         feats = extractor(np.clip(view["rgb"][None], 0.0, 1.0))[0]
         res = view_similarity(feats, view["z_depth"], view["acc"], pseudo_k[i], pseudo_c2w[i],
                               known_features, known_z, known_intr, known_c2w,
-                              opacity_threshold=cfg.opacity_threshold, rel_tol=cfg.occlusion_rel_tol)
+                              opacity_threshold=cfg.opacity_threshold, rel_tol=cfg.occlusion_rel_tol,
+                              foreground_only=True)
         view.update(similarity=res.similarity, foreground=res.foreground)
         for name in LABELLED_VIEW_ARRAYS:
             views[name][i] = view[name]

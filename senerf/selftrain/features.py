@@ -273,12 +273,13 @@ class VGG19Features(FeatureExtractor):
         ``H x W``, each layer L2-normalised per pixel when ``normalize_layers``, concatenated."""
         h, w = out.shape[:2]
         c0 = 0
+        dst = torch.from_numpy(out)   # torch's copy of the permuted map beats numpy's strided one (~20 %)
         with torch.no_grad():
             for n_pools, mj in enumerate(maps):  # map l was taken after l pools
                 mj = _upsample_pooled(mj, n_pools, h, w)
                 if self.normalize_layers:
                     mj = mj / mj.norm(dim=1, keepdim=True).clamp_min(1e-8)
-                out[:, :, c0:c0 + mj.shape[1]] = mj[0].permute(1, 2, 0).numpy()
+                dst[:, :, c0:c0 + mj.shape[1]].copy_(mj[0].permute(1, 2, 0))
                 c0 += mj.shape[1]
 
 

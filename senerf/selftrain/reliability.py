@@ -35,6 +35,7 @@ __all__ = [
     "NO_MATCH",
     "ViewSimilarity",
     "bilinear_sample",
+    "bilinear_sample_reference",
     "cosine_similarity",
     "view_similarity",
     "adaptive_threshold",
@@ -92,6 +93,39 @@ def bilinear_sample(image: np.ndarray, uv: np.ndarray) -> np.ndarray:
     y1 = np.minimum(y0 + 1, h - 1)
     fx = (x - x0).astype(np.float32)[:, None]
     fy = (y - y0).astype(np.float32)[:, None]
+    # top = c00 (1 - fx) + c01 fx, bottom = c10 (1 - fx) + c11 fx, top (1 - fy) + bottom fy: the same
+    # operations in the same order, in place (a third faster on (16384, 960) lookups than with temporaries)
+    flat = image.reshape(h * w, -1)
+    dtype = np.result_type(flat.dtype, np.float32)
+    top = flat.take(y0 * w + x0, axis=0).astype(dtype, copy=False)
+    top *= 1 - fx
+    tmp = flat.take(y0 * w + x1, axis=0).astype(dtype, copy=False)
+    tmp *= fx
+    top += tmp
+    bottom = flat.take(y1 * w + x0, axis=0).astype(dtype, copy=False)
+    bottom *= 1 - fx
+    tmp = flat.take(y1 * w + x1, axis=0).astype(dtype, copy=False)
+    tmp *= fx
+    bottom += tmp
+    top *= 1 - fy
+    bottom *= fy
+    top += bottom
+    return top.astype(np.float32, copy=False)
+
+
+def bilinear_sample_reference(image: np.ndarray, uv: np.ndarray) -> np.ndarray:
+    """:func:`bilinear_sample` written out with temporaries (its code until ba7b32d): the pure reference the
+    in-place version matches bit for bit (tests) and is timed against (``bench_selftrain.py labelling``)."""
+    image = np.asarray(image)
+    uv = np.asarray(uv, dtype=np.float64)
+    h, w = image.shape[:2]
+    x = np.clip(uv[:, 0] - 0.5, 0.0, w - 1.0)
+    y = np.clip(uv[:, 1] - 0.5, 0.0, h - 1.0)
+    x0 = np.minimum(np.floor(x).astype(np.int64), w - 1)
+    y0 = np.minimum(np.floor(y).astype(np.int64), h - 1)
+    x1, y1 = np.minimum(x0 + 1, w - 1), np.minimum(y0 + 1, h - 1)
+    fx = (x - x0).astype(np.float32)[:, None]
+    fy = (y - y0).astype(np.float32)[:, None]
     top = image[y0, x0] * (1 - fx) + image[y0, x1] * fx
     bottom = image[y1, x0] * (1 - fx) + image[y1, x1] * fx
     return (top * (1 - fy) + bottom * fy).astype(np.float32)
@@ -126,7 +160,7 @@ def view_similarity(pseudo_features: np.ndarray, pseudo_z: np.ndarray, pseudo_op
                     pseudo_intrinsics, pseudo_c2w: np.ndarray,
                     known_features: np.ndarray, known_z: np.ndarray, known_intrinsics, known_c2w: np.ndarray,
                     opacity_threshold: float = 0.5, rel_tol: float = 0.05, abs_tol: float = 0.0,
-                    ) -> ViewSimilarity:
+                    foreground_only: bool = False) -> ViewSimilarity:
     """Per-pixel feature consistency of one pseudo view against all known views.
 
     Args:
@@ -145,6 +179,9 @@ def view_similarity(pseudo_features: np.ndarray, pseudo_z: np.ndarray, pseudo_op
         opacity_threshold: foreground = opacity >= this.
         rel_tol, abs_tol: occlusion tolerances handed to ``geometry.reproject`` (its test compares with the max
             depth of the 2 x 2 footprint; 5 % relative slack absorbs the noise of rendered depth).
+        foreground_only: score only the foreground pixels (the background ones get ``NO_MATCH`` and no valid
+            view), which is all the labels use: on lego Extreme ~26 % of a pseudo view's pixels, so about a
+            quarter of the feature lookups.  Each scored pixel's values are the same either way.
     Returns:
         :class:`ViewSimilarity`.
     """
@@ -186,6 +223,8 @@ def view_similarity(pseudo_features: np.ndarray, pseudo_z: np.ndarray, pseudo_op
     flat_src = pseudo_features.reshape(-1, c)
     for j in range(k):
         ok = np.asarray(ok_all[j], dtype=bool) & np.isfinite(pseudo_z) & (pseudo_z > 0)
+        if foreground_only:
+            ok &= foreground
         idx = np.flatnonzero(ok.reshape(-1))
         if idx.size == 0:
             continue

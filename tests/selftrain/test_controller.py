@@ -438,6 +438,7 @@ def test_known_views_keep_their_own_intrinsics(monkeypatch):
 
     def fake_similarity(feats, z, opacity, pseudo_k, pseudo_c2w, known_f, known_z, known_k, known_c2w, **kw):
         seen["pseudo_k"], seen["known_k"] = pseudo_k, known_k
+        seen["foreground_only"] = kw.get("foreground_only")
         return ViewSimilarity(np.zeros((h, w), np.float32), np.zeros((2, h, w), np.float32),
                               np.zeros((2, h, w), bool), np.ones((h, w), bool))
 
@@ -454,6 +455,7 @@ def test_known_views_keep_their_own_intrinsics(monkeypatch):
         assert seen["render"] == [expect, k0, k0]      # known views, then the pseudo views one at a time
         assert seen["known_k"] == expect and seen["pseudo_k"] == k0
         assert labels.intrinsics == k0
+        assert seen["foreground_only"] is True   # the background is not scored (the labels never use it)
 
 
 def test_pseudo_views_keep_their_source_views_intrinsics(tiny_scene, tmp_path, monkeypatch):

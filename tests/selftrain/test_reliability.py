@@ -10,6 +10,7 @@ from senerf.selftrain.reliability import (
     NO_MATCH,
     adaptive_threshold,
     bilinear_sample,
+    bilinear_sample_reference,
     cosine_similarity,
     gt_reliable_mask,
     mask_quality,
@@ -48,6 +49,18 @@ def test_bilinear_sample_pixel_centre_convention():
     uv = np.array([[0.5, 0.5], [3.5, 2.5], [1.0, 0.5], [1.5, 1.0], [-3.0, 0.5]])
     out = bilinear_sample(img, uv)[:, 0]
     np.testing.assert_allclose(out, [0.0, 11.0, 0.5, 3.0, 0.0])
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64, np.uint8])
+def test_bilinear_sample_matches_the_reference_bit_for_bit(dtype):
+    rng = np.random.default_rng(3)
+    image = rng.uniform(0, 255, size=(9, 13, 5)).astype(dtype)
+    before = image.copy()
+    uv = np.concatenate([rng.uniform(-2.0, 15.0, size=(200, 2)), [[0.5, 0.5], [12.5, 8.5], [13.0, 9.0]]])
+    out = bilinear_sample(image, uv)
+    assert out.dtype == np.float32 and out.shape == (uv.shape[0], 5)
+    np.testing.assert_array_equal(out, bilinear_sample_reference(image, uv))
+    np.testing.assert_array_equal(image, before)   # the in-place arithmetic works on copies
 
 
 def test_cosine_similarity_values():
@@ -137,6 +150,31 @@ def test_occluded_and_background_pixels():
     # background pixels never become reliable, whatever their similarity
     w = threshold_weights(res.similarity, res.foreground, "fixed", tau=0.6)
     assert not w[0].any() and w[1:, 21:].all()
+
+
+def test_foreground_only_scores_the_foreground_alone_and_the_same(monkeypatch):
+    """foreground_only (what the labels use): foreground pixels get exactly the full call's values, background
+    ones NO_MATCH and no valid view, and fewer features are looked up."""
+    import senerf.selftrain.reliability as rel
+
+    kf, kz, kc, pf, pz, opacity = _two_known_views_and_a_pseudo_view()
+    opacity = opacity.copy()
+    opacity[:, :15] = 0.2          # a background band on the left
+    looked_up = []
+    real = rel.bilinear_sample
+    monkeypatch.setattr(rel, "bilinear_sample", lambda image, uv: (looked_up.append(len(uv)), real(image, uv))[1])
+    full = view_similarity(pf, pz, opacity, K, camera(0.05), kf, kz, K, kc)
+    n_full = sum(looked_up)
+    looked_up.clear()
+    part = view_similarity(pf, pz, opacity, K, camera(0.05), kf, kz, K, kc, foreground_only=True)
+    fg = full.foreground
+    assert fg.any() and (~fg).any() and full.valid[:, ~fg].any()   # the background was scored before
+    np.testing.assert_array_equal(part.foreground, fg)
+    np.testing.assert_array_equal(part.similarity[fg], full.similarity[fg])
+    np.testing.assert_array_equal(part.per_view[:, fg], full.per_view[:, fg])
+    np.testing.assert_array_equal(part.valid[:, fg], full.valid[:, fg])
+    assert np.all(part.similarity[~fg] == NO_MATCH) and not part.valid[:, ~fg].any()
+    assert sum(looked_up) == full.valid[:, fg].sum() < n_full
 
 
 def test_adaptive_threshold_is_numpy_quantile():
