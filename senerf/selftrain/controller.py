@@ -37,7 +37,7 @@ import json
 import math
 import shutil
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Callable
 
@@ -190,6 +190,7 @@ class PseudoLabels:
         intrinsics: the ``Intrinsics`` the views were rendered with: one shared, or a tuple of P.
         seconds_recorded: seconds the views read back from a labelling record took when they were labelled
             (``estimate_reliability``'s ``resume``; 0 without one), for the iteration's time.
+        views_recorded: how many views were read back from that record rather than labelled.
     """
 
     c2w: np.ndarray
@@ -205,6 +206,7 @@ class PseudoLabels:
     empty: np.ndarray
     intrinsics: "geometry.Intrinsics | tuple[geometry.Intrinsics, ...]"
     seconds_recorded: float = 0.0
+    views_recorded: int = 0
 
     def __post_init__(self) -> None:
         if self.empty.shape != self.weights.shape or self.empty.dtype != bool:
@@ -308,7 +310,8 @@ def estimate_reliability(teacher, occupancy, model, scene, train_idx, pseudo_c2w
             views[name][i] = view[name]
         if resume is not None:
             write_labelled_view(resume, i, digest, view, time.perf_counter() - t0)
-    return _labels_from_views(views, pseudo_c2w, intr, cfg, alpha, seconds_recorded)
+    return replace(_labels_from_views(views, pseudo_c2w, intr, cfg, alpha),
+                   seconds_recorded=seconds_recorded, views_recorded=n - len(todo))
 
 
 def _known_z_depth(teacher, occupancy, model, known_intr, known_c2w, cfg: SelfTrainConfig, device, renders,
@@ -321,8 +324,7 @@ def _known_z_depth(teacher, occupancy, model, known_intr, known_c2w, cfg: SelfTr
     return np.where(known["acc"] >= cfg.opacity_threshold, known["z_depth"], np.inf)
 
 
-def _labels_from_views(views: dict, pseudo_c2w: np.ndarray, intr, cfg: SelfTrainConfig, alpha: float,
-                       seconds_recorded: float) -> PseudoLabels:
+def _labels_from_views(views: dict, pseudo_c2w: np.ndarray, intr, cfg: SelfTrainConfig, alpha: float) -> PseudoLabels:
     """:class:`PseudoLabels` from every pseudo view's render, similarity and foreground (``views``: the
     :data:`LABELLED_VIEW_ARRAYS`, each ``(P, H, W, ...)``): the threshold over all of them, weights, prior."""
     sims, fg, acc = views["similarity"], views["foreground"], views["acc"]
@@ -338,7 +340,7 @@ def _labels_from_views(views: dict, pseudo_c2w: np.ndarray, intr, cfg: SelfTrain
         prior = (fg & has & (weights <= 0)).astype(np.float32)
     return PseudoLabels(c2w=pseudo_c2w, rgb=views["rgb"], z_depth=views["z_depth"], acc=acc,
                         similarity=sims, foreground=fg, tau=tau, weights=weights, prior=prior,
-                        neighbour=neighbour, empty=empty, intrinsics=intr, seconds_recorded=seconds_recorded)
+                        neighbour=neighbour, empty=empty, intrinsics=intr)
 
 
 def _empty_pixels(acc: np.ndarray, empty_opacity: float) -> np.ndarray:
@@ -720,6 +722,7 @@ def run_selftraining(scene, train_idx, test_idx, model, train_cfg, cfg: SelfTrai
         t_it = time.perf_counter()
         reliable_fraction = None
         labelled_before = 0.0   # seconds of pseudo views labelled by an interrupted earlier call
+        label_dir = ckpt_dir / f"iter_{k}_labels"
         tcfg = train_cfg if k == 0 else student_cfg
         # a fresh field (not a copy of the teacher) from the same initialisation seed in every iteration:
         # on 3 views the initialisation alone moved test PSNR by 1 dB (lego Extreme, 200 steps, seeds 0
@@ -728,8 +731,10 @@ def run_selftraining(scene, train_idx, test_idx, model, train_cfg, cfg: SelfTrai
         extra = None
         if k > 0:
             if cfg.reliability == "features":   # the seconds before the labels' line below, said
+                found = len(list(label_dir.glob("view_*.npz"))) if label_dir.is_dir() else 0
                 echo(f"selftrain: iteration {k}: labelling {cfg.n_pseudo_per_input * train_idx.size} pseudo views "
-                     f"(teacher renders, {cfg.features} features, reprojection into {train_idx.size} known views)")
+                     f"(teacher renders, {cfg.features} features, reprojection into {train_idx.size} known views)"
+                     + (f"; {found} labelled by an interrupted run found in {label_dir}" if found else ""))
             if extractor is None and cfg.reliability == "features":
                 extractor = make_feature_extractor(cfg.features, **(
                     {"normalize_layers": cfg.normalize_layers} if cfg.features == "vgg19" else {}))
@@ -744,12 +749,13 @@ def run_selftraining(scene, train_idx, test_idx, model, train_cfg, cfg: SelfTrai
                     teacher, occupancy, model, scene, train_idx, pseudo_c2w, extractor, cfg, cfg.alpha(k),
                     known_features=lambda: _known_features_once(known_feats, extractor, scene, train_idx, model),
                     device=device, pseudo_intrinsics=pseudo_k, progress=progress,
-                    resume=ckpt_dir / f"iter_{k}_labels")
+                    resume=label_dir)
             reliable_fraction = labels.reliable_fraction
             labelled_before = labels.seconds_recorded
             _write_pseudo_pngs(out / f"iter_{k}" / "pseudo", labels)
+            kept = f" ({labels.views_recorded} read back, not labelled again)" if labels.views_recorded else ""
             echo(f"selftrain: iteration {k}: {pseudo_c2w.shape[0]} pseudo views within "
-                 f"{cfg.pseudo_range(k):g} deg, {_labels_text(labels, cfg)}")
+                 f"{cfg.pseudo_range(k):g} deg{kept}, {_labels_text(labels, cfg)}")
             pseudo = _pseudo_rays(labels, model, device, cfg.kernel_size)
             extra = DistillationLoss(teacher, pseudo, cfg, model.n_samples,
                                      model.train_background, teacher_occupancy=occupancy)

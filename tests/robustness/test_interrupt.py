@@ -204,7 +204,7 @@ def test_an_interrupt_during_evaluation_resumes_at_the_first_view_not_scored(sce
 
 @pytest.mark.parametrize("where", ["labelling", "student"])
 def test_an_interrupt_in_iteration_1_resumes_without_labelling_again(scene24, tmp_path, similarity_spy, monkeypatch,
-                                                                     where):
+                                                                     capsys, where):
     """Ctrl-C while iteration 1 labels its pseudo views (at the third), or while its student trains: the rerun
     labels only the views not yet labelled (none, for the student) and ends with the uninterrupted run's figures;
     the labelling record (``checkpoints/iter_1_labels/``) is gone once metrics.json holds the iteration.  Before,
@@ -234,8 +234,12 @@ def test_an_interrupt_in_iteration_1_resumes_without_labelling_again(scene24, tm
     (out / "checkpoints" / "iter_0_labels").mkdir()   # as a kill after iteration 0's metrics leaves it
     monkeypatch.setattr(controller_mod, "train_field", students)
     similarity_spy.calls, similarity_spy.stop_at = 0, None
+    capsys.readouterr()
     assert main(_selftrain_argv(scene24, out)) == 0
     assert similarity_spy.calls == n_pseudo - n_recorded
+    said = capsys.readouterr().out   # what a user sees of it
+    assert f"; {n_recorded} labelled by an interrupted run found in {record}" in said
+    assert f"24 pseudo views within 10 deg ({n_recorded} read back, not labelled again)" in said
     assert not list((out / "checkpoints").glob("iter_*_labels"))
     resumed = json.loads((out / "metrics.json").read_text())
     assert [it["iteration"] for it in resumed["iterations"]] == [0, 1]

@@ -42,7 +42,7 @@ def _label(setup, resume=None, teacher=None, c2w=None, extractor=None, cfg=None,
 
 def _assert_same_labels(a, b):
     for f in dataclasses.fields(a):
-        if f.name in ("seconds_recorded", "intrinsics"):
+        if f.name in ("seconds_recorded", "views_recorded", "intrinsics"):
             continue
         x, y = getattr(a, f.name), getattr(b, f.name)
         if isinstance(x, np.ndarray):
@@ -80,7 +80,8 @@ def test_a_complete_record_is_read_back_without_rendering_or_labelling(setup, re
     recorded_seconds = sum(read_labelled_view(folder, i, _digest(setup), reference.acc.shape[1:])["seconds"]
                            for i in range(N_PSEUDO))
     assert labels.seconds_recorded == pytest.approx(recorded_seconds) and labels.seconds_recorded > 0
-    assert reference.seconds_recorded == 0.0
+    assert labels.views_recorded == N_PSEUDO
+    assert reference.seconds_recorded == 0.0 and reference.views_recorded == 0
 
 
 def _digest(setup):
@@ -99,7 +100,7 @@ def test_an_interrupted_labelling_labels_only_the_views_it_lacks(setup, referenc
     assert sorted(p.name for p in folder.iterdir()) == ["view_000.npz", "view_001.npz"]
     similarity_spy.calls, similarity_spy.stop_at = 0, None
     labels = _label(setup, resume=folder)
-    assert similarity_spy.calls == N_PSEUDO - 2
+    assert similarity_spy.calls == N_PSEUDO - 2 and labels.views_recorded == 2
     _assert_same_labels(labels, reference)
 
 
