@@ -324,7 +324,8 @@ def _known_z_depth(teacher, occupancy, model, known_intr, known_c2w, cfg: SelfTr
     return np.where(known["acc"] >= cfg.opacity_threshold, known["z_depth"], np.inf)
 
 
-def _labels_from_views(views: dict, pseudo_c2w: np.ndarray, intr, cfg: SelfTrainConfig, alpha: float) -> PseudoLabels:
+def _labels_from_views(views: dict, pseudo_c2w: np.ndarray, intr, cfg: SelfTrainConfig,
+                       alpha: float) -> PseudoLabels:
     """:class:`PseudoLabels` from every pseudo view's render, similarity and foreground (``views``: the
     :data:`LABELLED_VIEW_ARRAYS`, each ``(P, H, W, ...)``): the threshold over all of them, weights, prior."""
     sims, fg, acc = views["similarity"], views["foreground"], views["acc"]

@@ -1,6 +1,6 @@
 """The labelling record: each pseudo view's teacher render, similarity and foreground kept on disk as soon as it
 is labelled, so that a run interrupted while labelling, or resumed inside the student's training, does not
-label again (at 400x400 a view takes ~7 s on 2 cores, an iteration's 24 views ~3 min).
+label again (at 400x400 a view takes ~4 s on 2 cores, an iteration's 24 views ~100 s; BENCHMARKS.md).
 
 One ``view_XXX.npz`` per pseudo view (``XXX``: its position) in a folder (``checkpoints/iter_K_labels/`` in a
 run), each written atomically when its view is done and stamped with :func:`labelling_digest`, a SHA-256 of
