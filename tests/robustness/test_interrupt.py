@@ -17,6 +17,7 @@
 from __future__ import annotations
 
 import ast
+import io
 import json
 import os
 import signal
@@ -25,6 +26,7 @@ import sys
 import time
 from pathlib import Path
 
+import numpy as np
 import pytest
 import torch
 
@@ -232,6 +234,12 @@ def test_an_interrupt_in_iteration_1_resumes_without_labelling_again(scene24, tm
     n_recorded = 2 if where == "labelling" else n_pseudo
     assert len(list(record.glob("view_*.npz"))) == n_recorded
     (out / "checkpoints" / "iter_0_labels").mkdir()   # as a kill after iteration 0's metrics leaves it
+    for path in record.glob("view_*.npz"):   # each recorded view "took" 1000 s: the rerun's seconds must count it
+        with np.load(path) as f:
+            arrays = {name: f[name] for name in f.files}
+        buf = io.BytesIO()
+        np.savez(buf, **dict(arrays, seconds=np.float64(1000.0)))
+        path.write_bytes(buf.getvalue())
     monkeypatch.setattr(controller_mod, "train_field", students)
     similarity_spy.calls, similarity_spy.stop_at = 0, None
     capsys.readouterr()
@@ -246,6 +254,26 @@ def test_an_interrupt_in_iteration_1_resumes_without_labelling_again(scene24, tm
     for a, b in zip(reference["iterations"], resumed["iterations"]):
         for key in ("psnr", "ssim", "per_view", "reliable_fraction"):
             assert a[key] == b[key], (a["iteration"], key)
+    assert 1000 * n_recorded <= resumed["iterations"][1]["seconds"] < 1000 * (n_recorded + 1)
+    assert resumed["seconds_total"] >= 1000 * n_recorded
+
+
+def test_each_iteration_labels_into_its_own_record_and_the_known_features_are_computed_once(scene24, tmp_path,
+                                                                                           monkeypatch):
+    import senerf.selftrain.controller as controller_mod
+
+    features, records = [], []
+    real_features, real_labelling = controller_mod.known_view_features, controller_mod.estimate_reliability
+    monkeypatch.setattr(controller_mod, "known_view_features",
+                        lambda *a, **k: (features.append(1), real_features(*a, **k))[1])
+    monkeypatch.setattr(controller_mod, "estimate_reliability",
+                        lambda *a, **k: (records.append(k["resume"].name), real_labelling(*a, **k))[1])
+    argv = _selftrain_argv(scene24, tmp_path / "run")
+    argv[argv.index("--iterations") + 1] = "2"
+    assert main(argv) == 0
+    assert features == [1]
+    assert records == ["iter_1_labels", "iter_2_labels"]
+    assert not list((tmp_path / "run" / "checkpoints").glob("iter_*_labels"))
 
 
 # calls that write files; the atomic helpers are the only places allowed to use them

@@ -2,8 +2,9 @@
 
 Before it, labelling started again from its first pseudo view after any interruption, and a run resumed
 inside the student's training labelled the whole iteration again before training on (~3 min an iteration at
-400x400 on 2 cores, measured).  Each test here fails on that code (``resume`` did not exist, so the second
-call labels every view).
+400x400 on 2 cores, measured).  Each test here fails on that code (``resume`` did not exist).  A mutation audit
+of the change (session 17) added the cases for the pseudo intrinsics and the opacity threshold in the digest, the
+dtype check, the empty file, the recorded seconds, the resumed bar and the per-view intrinsics of the renders.
 """
 
 from __future__ import annotations
@@ -11,14 +12,16 @@ from __future__ import annotations
 import copy
 import dataclasses
 import shutil
+import time
 
 import numpy as np
 import pytest
 import torch
 
+import senerf
 import senerf.selftrain.controller as controller_mod
 from senerf.selftrain import SelfTrainConfig, make_feature_extractor
-from senerf.selftrain.labelrecord import LABELLED_VIEW_ARRAYS, read_labelled_view
+from senerf.selftrain.labelrecord import LABELLED_VIEW_ARRAYS, read_labelled_view, write_labelled_view
 
 N_PSEUDO = 4
 
@@ -32,12 +35,21 @@ def setup(tiny_scene, tiny_teacher):
     return tiny_scene, train_idx, model, res.field.eval(), res.occupancy, c2w[:N_PSEUDO], k[:N_PSEUDO], cfg
 
 
-def _label(setup, resume=None, teacher=None, c2w=None, extractor=None, cfg=None, alpha=0.15, scene=None, **kw):
-    sc, train_idx, model, field, occ, pc2w, pk, cfg0 = setup
+def _label(setup, resume=None, teacher=None, c2w=None, extractor=None, cfg=None, alpha=0.15, scene=None, pk=None,
+           **kw):
+    sc, train_idx, model, field, occ, pc2w, pk0, cfg0 = setup
     cfg = cfg or cfg0
     return controller_mod.estimate_reliability(
         teacher or field, occ, model, scene or sc, train_idx, pc2w if c2w is None else c2w,
-        extractor or make_feature_extractor("daisy"), cfg, alpha, pseudo_intrinsics=pk, resume=resume, **kw)
+        extractor or make_feature_extractor("daisy"), cfg, alpha, pseudo_intrinsics=pk or pk0, resume=resume, **kw)
+
+
+def _wider_second_view(setup):
+    """The pseudo intrinsics with view 1's focal length 1.2 times longer."""
+    pk = list(setup[6])
+    k = pk[1]
+    pk[1] = senerf.geometry.Intrinsics(k.fx * 1.2, k.fy * 1.2, k.cx, k.cy, k.width, k.height)
+    return tuple(pk)
 
 
 def _assert_same_labels(a, b):
@@ -107,10 +119,11 @@ def test_an_interrupted_labelling_labels_only_the_views_it_lacks(setup, referenc
 def test_a_missing_or_damaged_view_is_labelled_again(setup, reference, recorded, tmp_path, similarity_spy):
     folder = tmp_path / "rec"
     shutil.copytree(recorded, folder)
+    (folder / "view_000.npz").write_bytes(b"")                                              # empty
     (folder / "view_001.npz").unlink()
     (folder / "view_002.npz").write_bytes((folder / "view_002.npz").read_bytes()[:100])   # cut short
     labels = _label(setup, resume=folder)
-    assert similarity_spy.calls == 2
+    assert similarity_spy.calls == 3
     _assert_same_labels(labels, reference)
     assert read_labelled_view(folder, 2, _digest(setup), reference.acc.shape[1:]) is not None   # rewritten
 
@@ -134,6 +147,8 @@ CHANGES = {
     "pseudo cameras": lambda s: dict(c2w=s[5] + np.pad(np.full((3, 1), 1e-6), ((0, 1), (3, 0)))),
     "extractor": lambda s: dict(extractor=make_feature_extractor("daisy", radius=10.0)),
     "occlusion tolerance": lambda s: dict(cfg=dataclasses.replace(s[7], occlusion_rel_tol=0.2)),
+    "opacity threshold": lambda s: dict(cfg=dataclasses.replace(s[7], opacity_threshold=0.4)),
+    "pseudo intrinsics": lambda s: dict(pk=_wider_second_view(s)),
     "known photo": lambda s: dict(scene=_other_photo_scene(s)),
 }
 
@@ -168,3 +183,41 @@ def test_the_record_holds_the_arrays_it_names(setup, reference, recorded):
         np.testing.assert_array_equal(rec[name], getattr(reference, name)[1], err_msg=name)
     assert read_labelled_view(recorded, 1, "0" * 64, reference.acc.shape[1:]) is None
     assert read_labelled_view(recorded, 1, _digest(setup), (5, 5)) is None
+
+
+def test_a_view_of_another_dtype_is_not_read_back(setup, reference, recorded, tmp_path):
+    folder = tmp_path / "rec"
+    shutil.copytree(recorded, folder)
+    rec = read_labelled_view(folder, 1, _digest(setup), reference.acc.shape[1:])
+    write_labelled_view(folder, 1, _digest(setup), dict(rec, similarity=rec["similarity"].astype(np.float64)), 1.0)
+    assert read_labelled_view(folder, 1, _digest(setup), reference.acc.shape[1:]) is None
+
+
+def test_the_recorded_seconds_are_the_labelling_time(setup, tmp_path):
+    folder = tmp_path / "rec"
+    t0 = time.perf_counter()
+    _label(setup, resume=folder)
+    elapsed = time.perf_counter() - t0
+    assert 0 < _label(setup, resume=folder).seconds_recorded <= elapsed
+
+
+def test_each_pseudo_view_is_rendered_with_its_own_intrinsics(setup):
+    """Pseudo views are rendered one at a time now: each must still get its own K (view 1's differs here)."""
+    sc, train_idx, model, field, occ, pc2w, pk, cfg = setup
+    ks = _wider_second_view(setup)
+    labels = _label(setup, pk=ks)
+    own = controller_mod.render_views(field, model, ks[1], pc2w[1], occupancy=occ)
+    np.testing.assert_array_equal(labels.rgb[1], own["rgb"][0])
+    assert not np.array_equal(labels.rgb[1], controller_mod.render_views(field, model, ks[0], pc2w[1],
+                                                                         occupancy=occ)["rgb"][0])
+
+
+def test_a_resumed_labellings_bar_starts_at_the_views_read_back(setup, recorded, tmp_path, capsys):
+    folder = tmp_path / "rec"
+    shutil.copytree(recorded, folder)
+    (folder / f"view_{N_PSEUDO - 1:03d}.npz").unlink()
+    capsys.readouterr()
+    _label(setup, resume=folder, progress=True)
+    err = capsys.readouterr().err
+    assert f"{N_PSEUDO - 1}/{N_PSEUDO}" in err and f"{N_PSEUDO}/{N_PSEUDO}" in err
+    assert f"0/{N_PSEUDO}" not in err
