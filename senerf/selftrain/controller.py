@@ -247,8 +247,8 @@ def estimate_reliability(teacher, occupancy, model, scene, train_idx, pseudo_c2w
         pseudo_intrinsics: the pseudo cameras' ``Intrinsics`` (one, or a sequence of P); default image 0's
             (the controller passes each pseudo view its source input's, see ``_sample_pseudo_poses``).
             The known views always use their own (``scene.intrinsics_all``).
-        progress: tqdm bars over the known views' renders and the pseudo views' labelling (render, features,
-            warps).
+        progress: a tqdm bar over the pseudo views' labelling (render, features, warps), which shows the known
+            views' renders and features as its postfix while they are computed.
         resume: a folder recording each labelled view (its render, similarity and foreground;
             :mod:`senerf.selftrain.labelrecord`) under a digest of the teacher, the model, the known views, the
             pseudo cameras, the extractor and the occlusion settings.  A call that finds views recorded there
@@ -282,17 +282,22 @@ def estimate_reliability(teacher, occupancy, model, scene, train_idx, pseudo_c2w
         for name in LABELLED_VIEW_ARRAYS:
             views[name][i] = rec[name]
         seconds_recorded += rec["seconds"]
-    if todo:
-        known_z = _known_z_depth(teacher, occupancy, model, known_intr, known_c2w, cfg, device, renders, progress)
-        if callable(known_features):
-            known_features = known_features()
-        if known_features is None:
-            known_features = known_view_features(extractor, known_images(scene, train_idx, model))
     bar = todo
     if progress:   # a resumed labelling's bar starts at the views read back, so its rate and ETA are its own
         from tqdm.auto import tqdm
 
         bar = tqdm(todo, desc="labelling", unit="view", dynamic_ncols=True, total=n, initial=n - len(todo))
+    if todo:
+        if progress:   # the known views' part (seconds at 400x400) shows on the bar, and is left out of its rate
+            bar.set_postfix_str("known views: teacher renders, features")
+        known_z = _known_z_depth(teacher, occupancy, model, known_intr, known_c2w, cfg, device, renders)
+        if callable(known_features):
+            known_features = known_features()
+        if known_features is None:
+            known_features = known_view_features(extractor, known_images(scene, train_idx, model))
+        if progress:
+            bar.set_postfix_str("")
+            bar.unpause()
     for i in bar:
         t0 = time.perf_counter()
         if renders is None:
@@ -314,13 +319,12 @@ def estimate_reliability(teacher, occupancy, model, scene, train_idx, pseudo_c2w
                    seconds_recorded=seconds_recorded, views_recorded=n - len(todo))
 
 
-def _known_z_depth(teacher, occupancy, model, known_intr, known_c2w, cfg: SelfTrainConfig, device, renders,
-                   progress: bool) -> np.ndarray:
+def _known_z_depth(teacher, occupancy, model, known_intr, known_c2w, cfg: SelfTrainConfig, device,
+                   renders) -> np.ndarray:
     """(m, H, W) the teacher's z-depth of the known views, ``inf`` where it renders no surface (the occlusion
     buffer of :func:`view_similarity`); from ``renders[0]`` when given, else rendered."""
     known = (renders[0] if renders is not None else
-             render_views(teacher, model, known_intr, known_c2w, occupancy=occupancy, device=device,
-                          progress=progress))
+             render_views(teacher, model, known_intr, known_c2w, occupancy=occupancy, device=device))
     return np.where(known["acc"] >= cfg.opacity_threshold, known["z_depth"], np.inf)
 
 

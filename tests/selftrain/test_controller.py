@@ -539,8 +539,9 @@ def test_the_pseudo_views_labelling_shows_a_progress_bar(monkeypatch, capsys):
     np.testing.assert_array_equal(shown.weights, quiet.weights)
 
 
-def test_the_progress_setting_reaches_the_labelling_and_its_renders(tiny_scene, tmp_path, monkeypatch):
+def test_the_progress_setting_reaches_the_labelling_and_its_renders(tiny_scene, tmp_path, monkeypatch, capsys):
     # The mutation audit: dropping `progress=` from the controller's call or from either render went unseen.
+    # Since session 17 the renders draw no bars of their own: the labelling bar shows the known views' part.
     from senerf.selftrain import make_feature_extractor
     from senerf.train import TrainConfig, build_field, choose_model
 
@@ -573,10 +574,14 @@ def test_the_progress_setting_reaches_the_labelling_and_its_renders(tiny_scene, 
     monkeypatch.setattr(controller_mod, "render_views",
                         lambda *a, **k: (rendered.append(k.get("progress")), real_render(*a, **k))[1])
     pseudo_c2w = np.asarray(scene.c2w[train_idx[:1]], dtype=np.float64)
-    controller_mod.estimate_reliability(build_field(model), None, model, scene, train_idx, pseudo_c2w,
-                                        make_feature_extractor("daisy"), SelfTrainConfig(features="daisy"), 0.15,
-                                        progress=True)
-    assert rendered == [True, None]   # the known views' render has its bar; the pseudo view is the labelling's
+    for progress in (False, True):
+        capsys.readouterr()
+        controller_mod.estimate_reliability(build_field(model), None, model, scene, train_idx, pseudo_c2w,
+                                            make_feature_extractor("daisy"), SelfTrainConfig(features="daisy"), 0.15,
+                                            progress=progress)
+        err = capsys.readouterr().err
+        assert ("labelling" in err and "known views: teacher renders, features" in err and "1/1" in err) == progress
+    assert rendered == [None] * 4   # the known views', then the pseudo view's, twice: no bars of their own
 
 
 def test_one_training_view_is_refused_before_the_teacher_trains(tiny_scene, tmp_path):
