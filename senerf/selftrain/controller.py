@@ -32,6 +32,7 @@ ray-building functions (``render_views``, ``camera_rays``); this module does no 
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import json
 import math
@@ -631,13 +632,6 @@ def _load_teacher(path: Path, model, cfg_train, settings: dict, device):
     return field, occupancy, iteration, json.loads(state.get("iterations_json", "[]"))
 
 
-def _known_features_once(memo: list, extractor, scene, train_idx, model):
-    """The known views' features, computed on the first call and kept in ``memo`` (a list) for the later ones."""
-    if not memo:
-        memo.append(known_view_features(extractor, known_images(scene, train_idx, model)))
-    return memo[0]
-
-
 def _remove_iteration_records(ckpt_dir: Path, k: int) -> None:
     """Delete iteration ``k``'s evaluation and labelling records (once ``metrics.json`` holds the iteration)."""
     (ckpt_dir / f"iter_{k}_eval.json").unlink(missing_ok=True)
@@ -721,7 +715,7 @@ def run_selftraining(scene, train_idx, test_idx, model, train_cfg, cfg: SelfTrai
             _record_scene_files(files_record, files_now)
     rays = RayBatchSource.from_scene(scene, train_idx, model, device)
     extractor = None
-    known_feats = []   # the known views' features, computed once per run when a view is first labelled
+    known_feats = None   # the known views' features: computed once per run, when a view is first labelled
     carried = 0.0  # training and evaluation seconds of interrupted earlier calls, from what they recorded
     for k in range(start, cfg.iterations + 1):
         t_it = time.perf_counter()
@@ -743,6 +737,8 @@ def run_selftraining(scene, train_idx, test_idx, model, train_cfg, cfg: SelfTrai
             if extractor is None and cfg.reliability == "features":
                 extractor = make_feature_extractor(cfg.features, **(
                     {"normalize_layers": cfg.normalize_layers} if cfg.features == "vgg19" else {}))
+                known_feats = functools.cache(
+                    lambda: known_view_features(extractor, known_images(scene, train_idx, model)))
             if cfg.reliability == "oracle":
                 pseudo_idx = dataset_pseudo_views(scene, train_idx, test_idx, cfg.pseudo_range(k),
                                                   cfg.n_pseudo_per_input * train_idx.size)
@@ -752,7 +748,7 @@ def run_selftraining(scene, train_idx, test_idx, model, train_cfg, cfg: SelfTrai
                 pseudo_c2w, pseudo_k = _sample_pseudo_poses(scene, train_idx, cfg, k)
                 labels = estimate_reliability(
                     teacher, occupancy, model, scene, train_idx, pseudo_c2w, extractor, cfg, cfg.alpha(k),
-                    known_features=lambda: _known_features_once(known_feats, extractor, scene, train_idx, model),
+                    known_features=known_feats,
                     device=device, pseudo_intrinsics=pseudo_k, progress=progress,
                     resume=label_dir)
             reliable_fraction = labels.reliable_fraction
