@@ -53,7 +53,8 @@ from ..train import (atomic_write_text, build_field, camera_rays, config_to_dict
                      metrics_document, render_views, save_checkpoint, settings_differences, train_field, write_png)
 from .distill import DistillationLoss, DistillConfig, PseudoRays, prior_weights, unified_prior_weights
 from .features import FEATURE_NAMES, features_memory_problem, known_view_features, make_feature_extractor
-from .labelrecord import LABELLED_VIEW_ARRAYS, labelling_digest, read_labelled_view, write_labelled_view
+from .labelrecord import (LABELLED_VIEW_ARRAYS, labelled_view_layout, labelling_digest, read_labelled_view,
+                          write_labelled_view)
 from .reliability import (THRESHOLD_KINDS, gt_reliable_mask, mask_quality, resolve_threshold, threshold_weights,
                           view_similarity)
 
@@ -271,8 +272,7 @@ def estimate_reliability(teacher, occupancy, model, scene, train_idx, pseudo_c2w
     digest = None if resume is None else labelling_digest(teacher, occupancy, model, scene, train_idx, pseudo_c2w,
                                                            pseudo_k, extractor, cfg.opacity_threshold,
                                                            cfg.occlusion_rel_tol)
-    views = {name: np.empty((n, *size, 3) if name == "rgb" else (n, *size),
-                            bool if name == "foreground" else np.float32) for name in LABELLED_VIEW_ARRAYS}
+    views = {name: np.empty((n, *shape), dtype) for name, (shape, dtype) in labelled_view_layout(size).items()}
     seconds_recorded = 0.0
     todo = []
     for i in range(n):

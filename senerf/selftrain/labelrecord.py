@@ -24,11 +24,19 @@ import torch
 from ..train import atomic_write_bytes
 from ..train.evaluate import evaluation_digest
 
-__all__ = ["labelling_digest", "read_labelled_view", "write_labelled_view", "LABELLED_VIEW_ARRAYS"]
+__all__ = ["labelling_digest", "read_labelled_view", "write_labelled_view", "labelled_view_layout",
+           "LABELLED_VIEW_ARRAYS"]
 
 #: The per-view arrays a record holds: teacher ``rgb (H, W, 3)``, ``z_depth``, ``acc``, max ``similarity`` (all
-#: ``(H, W)`` float32) and ``foreground (H, W)`` bool.
+#: ``(H, W)`` float32) and ``foreground (H, W)`` bool (:func:`labelled_view_layout`).
 LABELLED_VIEW_ARRAYS = ("rgb", "z_depth", "acc", "similarity", "foreground")
+
+
+def labelled_view_layout(size: tuple[int, int]) -> dict[str, tuple[tuple[int, ...], type]]:
+    """``{name: (shape, dtype)}`` of each of :data:`LABELLED_VIEW_ARRAYS` for one view of ``size (H, W)``."""
+    h, w = size
+    return {name: ((h, w, 3) if name == "rgb" else (h, w), bool if name == "foreground" else np.float32)
+            for name in LABELLED_VIEW_ARRAYS}
 
 
 def labelling_digest(teacher, occupancy, model, scene, train_idx, pseudo_c2w: np.ndarray, pseudo_intrinsics,
@@ -79,8 +87,6 @@ def read_labelled_view(folder, i: int, digest: str, size: tuple[int, int]) -> di
     path = _view_path(folder, i)
     if not path.is_file():
         return None
-    h, w = size
-    shapes = dict(rgb=(h, w, 3), z_depth=(h, w), acc=(h, w), similarity=(h, w), foreground=(h, w))
     try:
         with np.load(path, allow_pickle=False) as f:
             if str(f["digest"]) != digest:
@@ -89,8 +95,7 @@ def read_labelled_view(folder, i: int, digest: str, size: tuple[int, int]) -> di
             out["seconds"] = float(f["seconds"])
     except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile):
         return None
-    for name, shape in shapes.items():
-        dtype = bool if name == "foreground" else np.float32
+    for name, (shape, dtype) in labelled_view_layout(size).items():
         if out[name].shape != shape or out[name].dtype != dtype:
             return None
     return out
