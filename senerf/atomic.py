@@ -1,17 +1,24 @@
 """Atomic file writes (no torch): a temporary file in the same folder, flushed and fsynced, then renamed
 over the target, so a crash leaves the old file or the new one, never half of one.  Used by checkpoints,
 metrics, renders and the benchmark report.  Also the checks the command lines make of an output path
-before writing anything there (:func:`output_folder`, :func:`output_file`)."""
+before writing anything there (:func:`output_folder`, :func:`output_file`), and the digest-stamped ``.npz``
+records that let interrupted work resume (:func:`write_npz_record`, :func:`read_npz_record`: the labelling
+record of self-training, the frames of ``senerf-render``)."""
 
 from __future__ import annotations
 
+import io
 import os
 import secrets
+import zipfile
 from pathlib import Path
+
+import numpy as np
 
 from senerf.errors import InputError
 
-__all__ = ["atomic_write", "atomic_write_bytes", "atomic_write_text", "output_folder", "output_file"]
+__all__ = ["atomic_write", "atomic_write_bytes", "atomic_write_text", "output_folder", "output_file",
+           "write_npz_record", "read_npz_record"]
 
 
 def output_folder(path, flag: str) -> Path:
@@ -106,3 +113,33 @@ def atomic_write_bytes(path: str | Path, data: bytes) -> None:
 def atomic_write_text(path: str | Path, text: str) -> None:
     """Write UTF-8 ``text`` to ``path`` atomically."""
     atomic_write_bytes(path, text.encode("utf-8"))
+
+
+def write_npz_record(path: str | Path, digest: str, arrays: dict, **scalars: float) -> None:
+    """Write ``arrays`` (name: array) and float ``scalars`` to the ``.npz`` file ``path`` atomically, stamped with
+    ``digest`` (a string naming everything the arrays depend on); ``path``'s folder is created."""
+    buf = io.BytesIO()
+    np.savez(buf, digest=np.str_(digest), **{name: np.float64(v) for name, v in scalars.items()},
+             **{name: np.asarray(a) for name, a in arrays.items()})
+    atomic_write_bytes(path, buf.getvalue())
+
+
+def read_npz_record(path: str | Path, digest: str, layout: dict, scalars: tuple[str, ...] = ()) -> dict | None:
+    """The arrays and ``scalars`` (floats) of the record ``path`` when it was written under ``digest`` and holds
+    every array of ``layout`` (``{name: (shape, dtype)}``) with that shape and dtype; else None (no file, another
+    digest, an unreadable or truncated file, a missing name: the work is done again and the file replaced)."""
+    path = Path(path)
+    if not path.is_file():
+        return None
+    try:
+        with np.load(path, allow_pickle=False) as f:
+            if str(f["digest"]) != digest:
+                return None
+            out = {name: np.array(f[name]) for name in layout}
+            out.update({name: float(f[name]) for name in scalars})
+    except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile):
+        return None
+    for name, (shape, dtype) in layout.items():
+        if out[name].shape != tuple(shape) or out[name].dtype != np.dtype(dtype):
+            return None
+    return out

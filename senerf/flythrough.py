@@ -10,17 +10,21 @@ The field is the one a finished iteration ended with (``checkpoints/iter_K_train
 (default ``RUN/render/<path>_iter<K>``): ``rgb_XXX.png``, ``depth_XXX.png`` (one depth colour range for the
 whole path, so the colours do not flicker), ``rgb.gif``, ``depth.gif`` and ``path.json`` (the poses, OpenCV
 camera-to-world in the scene's world frame, and the intrinsics); with ``--compare`` also ``compare.gif``, the
-teacher (iteration 0) beside the rendered iteration along the same path.  Nothing is written until every frame is
-rendered; the folder appears whole, by one rename.
+teacher (iteration 0) beside the rendered iteration along the same path.  The output folder is written once every
+frame is rendered and appears whole, by one rename.  Until then each rendered frame is kept in a hidden folder
+beside it (``.<name>.frames``, :func:`frames_record`), so that a render interrupted (Ctrl-C, SIGTERM, a kill, a
+full disk) goes on where it stopped when the same command is run again, with the same frames to the bit; that
+folder is removed once the output lands.
 
 Exit status: 0 done, 2 bad input (one line ``senerf-render: error: ...`` naming the file or flag), 130
-interrupted (Ctrl-C or SIGTERM; nothing is written), 1 internal error.
+interrupted (Ctrl-C or SIGTERM; no output is written, the frames rendered so far are kept), 1 internal error.
 """
 
 from __future__ import annotations
 
 import argparse
 import dataclasses
+import hashlib
 import json
 import os
 import re
@@ -38,8 +42,8 @@ from senerf.cliargs import OneLineParser, check_device, float_flag, int_flag, ru
 from senerf.errors import InputError
 from senerf.memory import physical_memory_bytes
 
-__all__ = ["FittedRun", "load_fitted_run", "with_iteration", "path_cameras", "render_frames", "side_by_side",
-           "write_frames", "recover_interrupted", "main", "PATHS"]
+__all__ = ["FittedRun", "load_fitted_run", "with_iteration", "path_cameras", "render_frames", "frames_record",
+           "side_by_side", "write_frames", "recover_interrupted", "main", "PATHS"]
 
 PROG = "senerf-render"
 #: The camera paths ``senerf-render`` draws.
@@ -336,20 +340,81 @@ def _scaled(k, scale: float):
                          field="--scale") from None
 
 
-def render_frames(run: FittedRun, c2w: np.ndarray, intrinsics, device=None, progress: bool = True) -> dict:
-    """Render the path: ``rgb (n, H, W, 3)`` uint8, ``depth (n, H, W, 3)`` uint8 colour-mapped over one
-    depth range for all frames (1st-99th percentile of the opaque pixels), ``z_depth``/``acc (n, H, W)``."""
-    from senerf.train import depth_to_color, render_views
-    from senerf.train.evaluate import to_uint8
+def frames_record(out: Path) -> Path:
+    """The folder beside ``out`` (``.NAME.frames``) where each rendered frame is kept until the output lands, so
+    that a rerun after an interrupt renders only the frames it lacks (:func:`render_frames`' ``resume``)."""
+    out = Path(out)
+    return out.with_name(f".{out.name}.frames")
 
-    out = render_views(run.field, run.model, intrinsics, c2w, occupancy=run.occupancy, device=device,
-                       progress=progress)
-    rgb = np.stack([to_uint8(frame) for frame in out["rgb"]])   # as senerf-fit's PNGs, a frame at a time
-    opaque = out["z_depth"][(out["acc"] > 0.5) & np.isfinite(out["z_depth"])]
+
+def _frame_digest(base: str, c2w: np.ndarray, k) -> str:
+    """SHA-256 naming one frame: ``base`` (the field, its grid and the model) and the frame's camera."""
+    h = hashlib.sha256(base.encode())
+    h.update(np.ascontiguousarray(c2w, dtype=np.float64).tobytes())
+    h.update(repr(k).encode())
+    return h.hexdigest()
+
+
+def _frame_layout(size: tuple[int, int]) -> dict:
+    h, w = size
+    return dict(rgb=((h, w, 3), np.uint8), z_depth=((h, w), np.float32), acc=((h, w), np.float32))
+
+
+def render_frames(run: FittedRun, c2w: np.ndarray, intrinsics, device=None, progress: bool = True,
+                  resume: Path | None = None, name: str = "frame") -> dict:
+    """Render the path: ``rgb (n, H, W, 3)`` uint8, ``depth (n, H, W, 3)`` uint8 colour-mapped over one
+    depth range for all frames (1st-99th percentile of the opaque pixels), ``z_depth``/``acc (n, H, W)``.
+
+    With ``resume`` (a folder), each frame is written there as ``NAME_XXX.npz`` as soon as it is rendered,
+    stamped with a digest of the field, its grid, the model and the frame's camera, and a frame already there
+    under its digest is read back instead of rendered (``read_back`` in the result counts them): an interrupted
+    render goes on where it stopped, with the same frames to the bit."""
+    from senerf.atomic import read_npz_record, write_npz_record
+    from senerf.train import depth_to_color, per_view_intrinsics, render_views
+    from senerf.train.evaluate import evaluation_digest, to_uint8
+
+    c2w = np.asarray(c2w, dtype=np.float64)
+    per_view = per_view_intrinsics(intrinsics, len(c2w))
+    size = per_view[0].size
+    layout = _frame_layout(size)
+    frames = {key: np.empty((len(c2w), *shape), dtype) for key, (shape, dtype) in layout.items()}
+    base = None if resume is None else evaluation_digest(run.field, run.occupancy, run.model, run.scene, [])
+    todo = []
+    for i, (pose, k) in enumerate(zip(c2w, per_view)):
+        digest = None if resume is None else _frame_digest(base, pose, k)
+        rec = None if resume is None else read_npz_record(Path(resume) / f"{name}_{i:03d}.npz", digest, layout)
+        if rec is None:
+            todo.append((i, digest))
+        else:
+            for key in layout:
+                frames[key][i] = rec[key]
+    bar = None
+    if progress:
+        from tqdm.auto import tqdm
+
+        bar = tqdm(total=len(c2w), initial=len(c2w) - len(todo), desc="render", unit="frame", dynamic_ncols=True)
+        if len(todo) < len(c2w):
+            bar.set_postfix_str(f"{len(c2w) - len(todo)} read back")
+    try:
+        for i, digest in todo:
+            out = render_views(run.field, run.model, per_view[i], c2w[i:i + 1], occupancy=run.occupancy,
+                               device=device)
+            frame = dict(rgb=to_uint8(out["rgb"][0]), z_depth=out["z_depth"][0], acc=out["acc"][0])
+            for key in layout:   # as senerf-fit's PNGs, a frame at a time
+                frames[key][i] = frame[key]
+            if resume is not None:
+                write_npz_record(Path(resume) / f"{name}_{i:03d}.npz", digest, frame)
+            if bar is not None:
+                bar.update()
+    finally:
+        if bar is not None:
+            bar.close()
+    z_depth, acc = frames["z_depth"], frames["acc"]
+    opaque = z_depth[(acc > 0.5) & np.isfinite(z_depth)]
     lo, hi = (np.percentile(opaque, [1.0, 99.0]) if opaque.size else (None, None))
     bg = 1.0 if run.model.eval_background == "white" else 0.0
-    depth = np.stack([depth_to_color(z, a, lo=lo, hi=hi, background=bg) for z, a in zip(out["z_depth"], out["acc"])])
-    return dict(rgb=rgb, depth=depth, z_depth=out["z_depth"], acc=out["acc"])
+    depth = np.stack([depth_to_color(z, a, lo=lo, hi=hi, background=bg) for z, a in zip(z_depth, acc)])
+    return dict(rgb=frames["rgb"], depth=depth, z_depth=z_depth, acc=acc, read_back=len(c2w) - len(todo))
 
 
 def side_by_side(left: np.ndarray, right: np.ndarray, labels: tuple[str, str], header: int = 18,
@@ -416,6 +481,13 @@ def write_frames(out: Path, frames: dict, record: dict, fps: float, overwrite: b
         if tmp.exists():
             shutil.rmtree(tmp, ignore_errors=True)
     return out
+
+
+def _remove_if_empty(folder: Path) -> None:
+    try:
+        folder.rmdir()
+    except OSError:   # holds frames (kept for the rerun), or is not there
+        pass
 
 
 def _missing_folders(folder: Path) -> list[Path]:
@@ -593,26 +665,39 @@ def _run(args, argv: list[str]) -> int:
         teacher = with_iteration(run, 0, device, flag="--compare")
     _check_memory(intrinsics, renders=2 if args.compare else 1)
     created = _missing_folders(out.parent)   # removed again unless the render lands (Ctrl-C, bad input)
+    record = frames_record(out)
     try:
         shutil.rmtree(_temp_sibling(out))   # the folder can be written: found out before rendering, not after
         print(f"{PROG}: {run.scene.name}, iteration {run.iteration}{' and the teacher' if teacher else ''}, {path} "
               f"path: {len(c2w)} frames at {intrinsics[0].width}x{intrinsics[0].height}")
-        frames = render_frames(run, c2w, intrinsics, device=device, progress=not args.quiet)
-        compare = None
+        if record.is_dir():
+            print(f"{PROG}: frames of an interrupted render found in {record}")
+        frames = render_frames(run, c2w, intrinsics, device=device, progress=not args.quiet, resume=record)
+        compare, read_back = None, frames["read_back"]
         if teacher is not None:
-            first = render_frames(teacher, c2w, intrinsics, device=device, progress=not args.quiet)
+            first = render_frames(teacher, c2w, intrinsics, device=device, progress=not args.quiet, resume=record,
+                                  name="teacher")
             compare = side_by_side(first["rgb"], frames["rgb"], ("teacher", f"iteration {run.iteration}"))
-        record = dict(senerf_render=__version__, command=argv, run=str(run.folder.resolve()),
+            read_back += first["read_back"]
+        if read_back:
+            print(f"{PROG}: ({read_back} frame{'s' if read_back > 1 else ''} read back, not rendered again)")
+        path_record = dict(senerf_render=__version__, command=argv, run=str(run.folder.resolve()),
                       iteration=run.iteration, compared_with=0 if compare is not None else None, path=path,
                       fps=args.fps,
                       convention="OpenCV camera-to-world (x right, y down, z forward), the "
                       "scene's world frame; intrinsics fx, fy, cx, cy, width, height (pixel centres at i + 0.5)",
                       intrinsics=[[k.fx, k.fy, k.cx, k.cy, k.width, k.height] for k in intrinsics],
                       c2w=c2w.tolist())
-        written = write_frames(out, frames, record, args.fps, args.overwrite, compare=compare)
+        try:
+            written = write_frames(out, frames, path_record, args.fps, args.overwrite, compare=compare)
+        except InputError as exc:   # a full disk, say: the frames stay for the rerun
+            raise InputError(f"{exc.problem}; the rendered frames are kept in {record}: rerun the same command to "
+                             f"write them", file=exc.file, field=exc.field) from None
+        shutil.rmtree(record, ignore_errors=True)   # the output landed: its frames are not needed again
         gifs = "rgb.gif, depth.gif and compare.gif" if compare is not None else "rgb.gif and depth.gif"
         print(f"{PROG}: {len(c2w)} frames, {gifs} in {written}")
     finally:
+        _remove_if_empty(record)   # interrupted before its first frame
         if not out.exists():
             for folder in created:   # deepest first; one that holds anything stays
                 try:
@@ -626,7 +711,8 @@ def main(argv: list[str] | None = None) -> int:
     """Entry point of ``senerf-render``; returns the exit status (0 ok, 2 bad input, 130 interrupted, 1 internal)."""
     argv = list(sys.argv[1:] if argv is None else argv)
     os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")   # as senerf-fit (sleeping OpenMP waits on shared cores)
-    return run_command(PROG, lambda: _run(build_parser().parse_args(argv), [PROG, *argv]), "nothing was written")
+    return run_command(PROG, lambda: _run(build_parser().parse_args(argv), [PROG, *argv]),
+                       "no output written; the frames rendered so far are kept: rerun the same command to resume")
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -12,7 +12,8 @@ import numpy as np
 import pytest
 
 from senerf.cli import main as fit
-from senerf.flythrough import load_fitted_run, main, path_cameras, render_frames
+from senerf.flythrough import frames_record, load_fitted_run, main, path_cameras, render_frames
+from senerf.geometry import Intrinsics
 
 FIT = ["--steps", "24", "--batch-rays", "128", "--samples", "12", "--resolution", "8", "--quiet"]
 
@@ -87,6 +88,23 @@ def test_scale_elevation_and_one_depth_range_for_the_whole_path(runs, tmp_path):
     assert frames["depth"].shape == (4, 32, 32, 3)
 
 
+_K8 = Intrinsics(8.0, 8.0, 4.0, 4.0, 8, 8)
+
+
+def _render_one_frame_at_a_time(monkeypatch, fake: dict) -> None:
+    """``render_views`` replaced by one that hands out ``fake``'s frames in order, one per call (as
+    :func:`render_frames` asks for them)."""
+    import senerf.train
+
+    calls = iter(range(len(fake["rgb"])))
+
+    def one(*args, **kwargs):
+        i = next(calls)
+        return {key: np.asarray(value)[i:i + 1] for key, value in fake.items()}
+
+    monkeypatch.setattr(senerf.train, "render_views", one)
+
+
 def test_one_depth_colour_range_for_the_whole_path(runs, monkeypatch):
     """The same depth gets the same colour in every frame (per-frame ranges would give 1.5 two colours)."""
     import senerf.train
@@ -94,9 +112,9 @@ def test_one_depth_colour_range_for_the_whole_path(runs, monkeypatch):
     z = np.stack([np.linspace(1.0, 2.0, 64).reshape(8, 8), np.linspace(1.0, 4.0, 64).reshape(8, 8)]).astype(np.float32)
     z[0, 0, 7] = z[1, 0, 5] = 1.5
     fake = dict(rgb=np.zeros((2, 8, 8, 3), np.float32), z_depth=z, acc=np.ones((2, 8, 8), np.float32))
-    monkeypatch.setattr(senerf.train, "render_views", lambda *a, **k: fake)
+    _render_one_frame_at_a_time(monkeypatch, fake)
     run = types.SimpleNamespace(field=None, model=types.SimpleNamespace(eval_background="white"), occupancy=None)
-    depth = render_frames(run, np.zeros((2, 4, 4)), None, progress=False)["depth"]
+    depth = render_frames(run, np.zeros((2, 4, 4)), _K8, progress=False)["depth"]
     np.testing.assert_array_equal(depth[0, 0, 7], depth[1, 0, 5])
     assert not np.array_equal(depth[0, 0, 0], depth[0, 7, 7])   # and the map is not flat
 
@@ -194,8 +212,15 @@ def test_out_is_replaced_only_when_it_is_ours_and_never_half_written(runs, tmp_p
         write_frames(fresh, render_frames(run, c2w, ks, progress=False), {"senerf_render": "x"}, 10.0)
     assert not fresh.exists() and not [p for p in tmp_path.iterdir() if p.name.startswith(".fresh")]
     assert main([*argv, "--overwrite", "--frames", "4"]) == 2   # a failure while writing: the old output stays
-    assert _error(capsys).endswith(f"{out}: cannot write there (disk full)")
+    kept = f"{out}: cannot write there (disk full); the rendered frames are kept in {frames_record(out)}"
+    assert kept in _error(capsys)
     assert len(json.loads((out / "path.json").read_text())["c2w"]) == 2
+    assert [p.name for p in tmp_path.iterdir() if p.name.startswith(".r.")] == [".r.frames"]   # for the rerun
+    assert sorted(p.name for p in frames_record(out).iterdir()) == [f"frame_{i:03d}.npz" for i in range(4)]
+    monkeypatch.undo()
+    assert main([*argv, "--overwrite", "--frames", "4"]) == 0   # space again: written from the kept frames
+    assert "(4 frames read back, not rendered again)" in capsys.readouterr().out
+    assert len(json.loads((out / "path.json").read_text())["c2w"]) == 4
     assert not [p for p in tmp_path.iterdir() if p.name.startswith(".r.")]
 
 
@@ -387,10 +412,10 @@ def test_depth_colours_span_the_1st_to_99th_percentile_of_opaque_pixels(monkeypa
     rgb = np.zeros((128, 3))
     rgb[0], rgb[1] = -0.5, 1.5   # out-of-range colours are clipped, not wrapped around
     fake = dict(rgb=rgb.reshape(2, 8, 8, 3), z_depth=z.reshape(2, 8, 8), acc=acc.reshape(2, 8, 8))
-    monkeypatch.setattr(senerf.train, "render_views", lambda *a, **k: fake)
     for background, grey in (("white", 255), ("black", 0)):
+        _render_one_frame_at_a_time(monkeypatch, fake)
         run = types.SimpleNamespace(field=None, model=types.SimpleNamespace(eval_background=background), occupancy=None)
-        out = render_frames(run, np.zeros((2, 4, 4)), None, progress=False)
+        out = render_frames(run, np.zeros((2, 4, 4)), _K8, progress=False)
         depth = out["depth"].reshape(128, 3)
         np.testing.assert_array_equal(depth[0], depth[1])       # depth 0 clipped to the 1st percentile, 1
         np.testing.assert_array_equal(depth[100], depth[99])    # depth 100 clipped to the 99th, 99
@@ -738,3 +763,87 @@ def test_an_interrupted_render_removes_the_folders_it_created_for_its_output(run
         assert main([str(runs.base), "--out", str(out), "--frames", "2", "--quiet"]) == 130
         assert "interrupted" in capsys.readouterr().err
     assert not (tmp_path / "a").exists() and (tmp_path / "kept").is_dir() and not (tmp_path / "kept" / "c").exists()
+
+
+def _files(folder) -> dict:
+    return {p.name: p.read_bytes() for p in sorted(folder.iterdir())}
+
+
+@pytest.mark.parametrize("compare", [False, True])
+def test_an_interrupted_render_resumes_where_it_stopped_with_the_same_frames(runs, tmp_path, capsys, monkeypatch,
+                                                                           compare):
+    import senerf.train
+    from tests.conftest import CallSpy
+
+    flags = ["--frames", "4", "--quiet", *(["--compare"] if compare else [])]
+    whole = tmp_path / "whole"
+    assert main([str(runs.st), "--out", str(whole), *flags]) == 0
+    capsys.readouterr()
+    out = tmp_path / "sub" / "resumed"
+    spy = CallSpy(senerf.train.render_views)
+    monkeypatch.setattr(senerf.train, "render_views", spy)
+    spy.stop_at = 7 if compare else 3   # Ctrl-C in the teacher's third frame / the third frame
+    assert main([str(runs.st), "--out", str(out), *flags]) == 130
+    err = capsys.readouterr().err
+    assert "the frames rendered so far are kept: rerun the same command to resume" in err
+    assert not out.exists()
+    kept = sorted(p.name for p in frames_record(out).iterdir())
+    done = [f"frame_{i:03d}.npz" for i in range(4)] + ["teacher_000.npz", "teacher_001.npz"] if compare else \
+        ["frame_000.npz", "frame_001.npz"]
+    assert kept == done
+    spy.calls, spy.stop_at = 0, None
+    assert main([str(runs.st), "--out", str(out), *flags]) == 0
+    printed = capsys.readouterr().out
+    assert f"frames of an interrupted render found in {frames_record(out)}" in printed
+    assert f"({len(kept)} frames read back, not rendered again)" in printed
+    assert spy.calls == (8 if compare else 4) - len(kept)   # only the frames the record lacked
+    resumed, reference = _files(out), _files(whole)
+    assert resumed.keys() == reference.keys()
+    for name in resumed:   # path.json names its own --out in its command line
+        if name != "path.json":
+            assert resumed[name] == reference[name], name
+    assert not frames_record(out).exists()   # gone once the output landed
+
+
+def test_kept_frames_of_another_field_or_camera_are_rendered_again(runs, tmp_path, capsys, monkeypatch):
+    import senerf.train
+    from tests.conftest import CallSpy
+
+    out = tmp_path / "o"
+    argv = [str(runs.st), "--out", str(out), "--quiet", "--frames"]
+    spy = CallSpy(senerf.train.render_views)
+    monkeypatch.setattr(senerf.train, "render_views", spy)
+
+    def render(frames: str, *flags: str, stop_at=None) -> int:
+        spy.calls, spy.stop_at = 0, stop_at
+        return main([*argv, frames, *flags])
+
+    assert render("3", "--iteration", "0", stop_at=3) == 130   # the teacher's frames 0 and 1 kept
+    assert render("3") == 0 and spy.calls == 3   # the last iteration's field: nothing read back
+    assert "read back" not in capsys.readouterr().out and not frames_record(out).exists()
+    assert render("3", "--overwrite", stop_at=3) == 130   # frames 0 and 1 of this field kept
+    assert render("4", "--overwrite") == 0   # a 4-frame orbit shares only its first camera with the 3-frame one
+    assert spy.calls == 3 and "(1 frame read back, not rendered again)" in capsys.readouterr().out
+    assert render("3", "--overwrite", stop_at=3) == 130
+    (frames_record(out) / "frame_000.npz").write_bytes(b"cut short")   # damaged (atomic writes leave none cut short)
+    assert render("3", "--overwrite") == 0 and spy.calls == 2   # frame 1 read back, 0 and 2 rendered
+    assert not frames_record(out).exists()
+
+
+def test_frame_records_are_read_only_under_their_digest_and_layout(tmp_path):
+    from senerf.atomic import read_npz_record, write_npz_record
+
+    layout = dict(rgb=((2, 3, 3), np.uint8), acc=((2, 3), np.float32))
+    arrays = dict(rgb=np.arange(18, dtype=np.uint8).reshape(2, 3, 3), acc=np.ones((2, 3), np.float32))
+    path = tmp_path / "deep" / "f.npz"
+    write_npz_record(path, "abc", arrays, seconds=1.5)
+    rec = read_npz_record(path, "abc", layout, scalars=("seconds",))
+    assert rec["seconds"] == 1.5 and all(np.array_equal(rec[k], arrays[k]) for k in arrays)
+    assert read_npz_record(path, "abd", layout) is None   # another digest
+    assert read_npz_record(path, "abc", dict(layout, acc=((2, 3), np.float64))) is None   # another dtype
+    assert read_npz_record(path, "abc", dict(layout, acc=((3, 2), np.float32))) is None   # another shape
+    assert read_npz_record(path, "abc", dict(layout, depth=((2, 3), np.float32))) is None   # a missing array
+    assert read_npz_record(tmp_path / "none.npz", "abc", layout) is None
+    path.write_bytes(path.read_bytes()[:40])
+    assert read_npz_record(path, "abc", layout) is None   # truncated
+    assert [p.name for p in path.parent.iterdir()] == ["f.npz"]   # no temporary left by the write

@@ -14,14 +14,12 @@ Used by :func:`senerf.selftrain.estimate_reliability` (its ``resume`` argument).
 from __future__ import annotations
 
 import hashlib
-import io
-import zipfile
 from pathlib import Path
 
 import numpy as np
 import torch
 
-from ..train import atomic_write_bytes
+from ..atomic import read_npz_record, write_npz_record
 from ..train.evaluate import evaluation_digest
 
 __all__ = ["labelling_digest", "read_labelled_view", "write_labelled_view", "labelled_view_layout",
@@ -84,27 +82,11 @@ def _view_path(folder: Path, i: int) -> Path:
 def read_labelled_view(folder, i: int, digest: str, size: tuple[int, int]) -> dict | None:
     """The recorded arrays of pseudo view ``i`` (:data:`LABELLED_VIEW_ARRAYS`, plus ``seconds``: the time its
     labelling took) when ``folder`` holds them under ``digest`` at image ``size (H, W)``; else None."""
-    path = _view_path(folder, i)
-    if not path.is_file():
-        return None
-    try:
-        with np.load(path, allow_pickle=False) as f:
-            if str(f["digest"]) != digest:
-                return None
-            out = {name: np.array(f[name]) for name in LABELLED_VIEW_ARRAYS}
-            out["seconds"] = float(f["seconds"])
-    except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile):
-        return None
-    for name, (shape, dtype) in labelled_view_layout(size).items():
-        if out[name].shape != shape or out[name].dtype != dtype:
-            return None
-    return out
+    return read_npz_record(_view_path(folder, i), digest, labelled_view_layout(size), scalars=("seconds",))
 
 
 def write_labelled_view(folder, i: int, digest: str, arrays: dict, seconds: float) -> None:
     """Record pseudo view ``i``'s ``arrays`` (:data:`LABELLED_VIEW_ARRAYS`) and the ``seconds`` they took under
     ``digest``, atomically (``folder`` is created)."""
-    buf = io.BytesIO()
-    np.savez(buf, digest=np.str_(digest), seconds=np.float64(seconds),
-             **{name: np.asarray(arrays[name]) for name in LABELLED_VIEW_ARRAYS})
-    atomic_write_bytes(_view_path(folder, i), buf.getvalue())
+    write_npz_record(_view_path(folder, i), digest, {name: arrays[name] for name in LABELLED_VIEW_ARRAYS},
+                     seconds=seconds)
