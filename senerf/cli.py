@@ -68,6 +68,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="few-shot protocol (default: 'views' with --views; extreme for the NeRF Synthetic scenes; "
                         "spread for other scenes with a test split: 3 views spread over the train split; else "
                         "llff: every 8th image tests, 3 views spread over the rest train)")
+    g.add_argument("--test-views", type=int_flag("--test-views"), metavar="N",
+                   help="score on N of the protocol's test views, spread evenly over them (default: all of them, "
+                        "as published tables are; fewer cost less where a test render takes seconds)")
     g.add_argument("--scene-kind", choices=("object", "forward-facing"),
                    help="COLMAP scenes: fit as an object or as a forward-facing (LLFF, NDC) capture instead of "
                         "the kind the cameras' spread suggests")
@@ -76,8 +79,8 @@ def build_parser() -> argparse.ArgumentParser:
     t = p.add_argument_group("training")
     t.add_argument("--preset", choices=("fast", "balanced"), default="balanced",
                    help="fast: 600 steps x 1024 rays, 1 self-training iteration (~100 s on lego Extreme at "
-                        "100x100, 2 CPU cores); balanced (default): 1000 x 4096, 3 iterations (~6-8 min, "
-                        "+0.5 dB; BENCHMARKS.md)")
+                        "100x100, 2 CPU cores); balanced (default): 1000 x 4096, 3 iterations (~6-9 min, "
+                        "+0.8 dB over fast on 9 seeds; BENCHMARKS.md)")
     t.add_argument("--steps", type=int_flag("--steps"), help="training steps per iteration (overrides preset)")
     t.add_argument("--batch-rays", type=int_flag("--batch-rays"), help="rays per step (overrides preset)")
     t.add_argument("--iterations", type=int_flag("--iterations", allow_zero=True), default=None,
@@ -440,7 +443,7 @@ def _run(args, argv) -> int:
     if not args.scene:
         raise InputError("a SCENE_DIR is required (or --demo)", field="SCENE_DIR")
 
-    from senerf.data import detect_format, fewshot_split, load_scene, scene_root, view_names
+    from senerf.data import detect_format, fewshot_split, load_scene, scene_root, spread_views, view_names
     from senerf.train import PRESETS, choose_model, config_to_dict, preset_train_config
 
     scene_dir = scene_root(args.scene)  # a marker file (transforms_train.json, ...) names its folder
@@ -458,10 +461,20 @@ def _run(args, argv) -> int:
                          f"evaluation (SSIM) needs at least {SSIM_MIN_SIDE}x{SSIM_MIN_SIDE}", field="--downscale")
     protocol = args.protocol or _default_protocol(scene, fmt, args.views)
     train_idx, test_idx = fewshot_split(scene, protocol, views=args.views, n_views=args.n_views, seed=args.seed)
+    tested, test_views = f"{len(test_idx)} test views", args.test_views
+    if test_views is not None:
+        subset = spread_views(test_idx, test_views)   # checks the number
+        if test_views == len(test_idx):   # all of them: the run the flag's absence makes
+            test_views = None
+        elif args.reliability == "oracle":   # its pseudo views are the images outside the whole test split
+            raise InputError("the oracle's held-out views are those outside the whole test split; score on all "
+                             "of it (leave --test-views out)", field="--test-views")
+        else:
+            tested, test_idx = f"{test_views} of the {len(test_idx)} test views (--test-views)", subset
     more = ' ...' if len(train_idx) > 12 else ''
     print(f"{PROG}: scene {scene.name} ({fmt}, {scene.size[1]}x{scene.size[0]}), protocol {protocol}: "
           f"{len(train_idx)} training views {list(map(int, train_idx))[:12]}{more} "
-          f"({', '.join(view_names(scene, train_idx[:12]))}{more}), {len(test_idx)} test views")
+          f"({', '.join(view_names(scene, train_idx[:12]))}{more}), {tested}")
     if fmt == "colmap":   # the kind was decided from the cameras (or chosen): say which, and why
         from senerf.data.colmap import FORWARD_FACING_DEG, MAX_RAY_DEG, view_spread
 
@@ -521,6 +534,8 @@ def _run(args, argv) -> int:
                   selftrain=None if st_cfg is None else config_to_dict(st_cfg))
     if kind is not None:  # only when chosen: runs made before the flag existed keep their identity
         config["scene_kind"] = kind
+    if test_views is not None:   # likewise
+        config["test_views"] = test_views
     # what must match to resume: everything but the device and the number of iterations (a finished
     # baseline can be extended by self-training with the same settings)
     identity = {k: v for k, v in config.items() if k != "selftrain"}

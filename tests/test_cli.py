@@ -753,3 +753,68 @@ def test_a_test_camera_far_beyond_the_box_is_refused_and_a_test_view_posed_as_a_
             "scores measure a view the field is trained on") in err
     assert main([str(tiny_scene), "--out", str(tmp_path / "plain"), *TINY]) == 0
     assert "has the pose of training view" not in capsys.readouterr().err
+
+
+def test_test_views_scores_an_even_spread_of_the_test_split(tmp_path, capsys):
+    """``--test-views N`` gives the figures of the whole test split's run restricted to the N views it keeps
+    (each view's render depends on the field alone), records the choice and resumes only with the same N."""
+    from senerf.procedural.export import export_blender_scene
+
+    scene = export_blender_scene(tmp_path / "s", n_train=4, n_val=0, n_test=7, width=16, height=16, seed=1)
+    argv = [str(scene), *TINY]
+    assert main([*argv, "--out", str(tmp_path / "all")]) == 0
+    assert main([*argv, "--out", str(tmp_path / "some"), "--test-views", "3"]) == 0
+    printed = capsys.readouterr().out
+    assert "4 training views [0, 1, 2, 3] (train/r_0.png, train/r_1.png, train/r_2.png, train/r_3.png), 3 of the 7 " \
+           "test views (--test-views)" in printed
+    every = json.loads((tmp_path / "all" / "metrics.json").read_text())
+    some = json.loads((tmp_path / "some" / "metrics.json").read_text())
+    kept = [0, 3, 6]   # round(linspace(0, 6, 3)), by hand
+    assert some["test_views"] == [every["test_views"][k] for k in kept] == [4, 7, 10]
+    assert some["test_images"] == ["test/r_0.png", "test/r_3.png", "test/r_6.png"]
+    assert some["config"]["test_views"] == 3 and "test_views" not in every["config"]
+    (a,), (b,) = every["iterations"], some["iterations"]
+    for metric in ("psnr", "ssim"):
+        assert b["per_view"][metric] == [a["per_view"][metric][k] for k in kept]   # the same renders, to the bit
+        assert b[metric] == pytest.approx(sum(b["per_view"][metric]) / 3)
+    for k, name in enumerate(("rgb_000.png", "rgb_003.png", "rgb_006.png")):
+        assert (tmp_path / "some" / "iter_0" / "test" / f"rgb_{k:03d}.png").read_bytes() == \
+            (tmp_path / "all" / "iter_0" / "test" / name).read_bytes()
+    # all 7 is the flag's absence (the same run); another number is another run, refused before any work
+    assert main([*argv, "--out", str(tmp_path / "all"), "--test-views", "7"]) == 0
+    capsys.readouterr()
+    assert main([*argv, "--out", str(tmp_path / "some"), "--test-views", "4"]) == 2
+    assert "different run (test_views: 3 in the folder, 4 now)" in _one_error_line(capsys)
+    assert main([*argv, "--out", str(tmp_path / "some")]) == 2
+    assert "different run (test_views: 3 in the folder, absent now)" in _one_error_line(capsys)
+
+
+@pytest.mark.parametrize("flags, needle", [
+    (["--test-views", "3"], "--test-views: expected a number of views from 1 to the 2 there are, got 3"),
+    (["--test-views", "0"], "argument --test-views: must be >= 1, got 0"),
+    (["--test-views", "1", "--iterations", "1", "--reliability", "oracle"],
+     "--test-views: the oracle's held-out views are those outside the whole test split"),
+])
+def test_test_views_that_cannot_be_kept_are_refused_before_anything_is_written(tiny_scene, tmp_path, capsys, flags,
+                                                                              needle):
+    out = tmp_path / "run"
+    assert main([str(tiny_scene), "--out", str(out), *SMALL, "--protocol", "spread", *flags]) == 2
+    assert needle in _one_error_line(capsys)
+    assert not out.exists()
+
+
+def test_spread_views_keeps_the_ends_and_spreads_the_rest():
+    import numpy as np
+
+    from senerf.data import spread_views
+
+    idx = np.arange(100, 300)
+    # round(linspace(0, 199, 25)) = round(8.2917 k): 0, 8, 17, 25, 33, ... 191, 199 (by hand)
+    kept = spread_views(idx, 25)
+    assert kept[:5].tolist() == [100, 108, 117, 125, 133] and kept[-2:].tolist() == [291, 299]
+    assert len(set(kept.tolist())) == 25 and (np.diff(kept) > 0).all() and kept.dtype == np.int64
+    assert spread_views(idx, 200).tolist() == idx.tolist() and spread_views(idx, 1).tolist() == [100]
+    assert spread_views([5, 3, 9], 2).tolist() == [5, 9]   # the given order
+    for bad in (0, 201, 2.0, True):
+        with pytest.raises(InputError, match="--test-views"):
+            spread_views(idx, bad)

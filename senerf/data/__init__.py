@@ -24,7 +24,7 @@ See :mod:`senerf.data.load` (detection, downscaling), :mod:`senerf.data.blender`
 
 from .blender import load_blender, load_ngp
 from .colmap import load_colmap
-from .fewshot import EXTREME_VIEWS, INFONERF4_VIEWS, PROTOCOLS, fewshot_split
+from .fewshot import EXTREME_VIEWS, INFONERF4_VIEWS, PROTOCOLS, fewshot_split, spread_views
 from .llff import load_llff, recenter_poses
 from .load import detect_format, load_scene, scene_root
 from .scene import Scene, changed_files, run_file_digests, scene_file_digests, view_names
@@ -46,6 +46,7 @@ __all__ = [
     "load_colmap",
     "recenter_poses",
     "fewshot_split",
+    "spread_views",
     "EXTREME_VIEWS",
     "INFONERF4_VIEWS",
     "PROTOCOLS",

@@ -27,6 +27,9 @@ protocol       train / test
 ``all``        The whole train split; test = the test split (empty for an ngp file without splits).
 =============  =======================================================================================
 
+``spread_views(test_idx, k)`` keeps ``k`` of a protocol's test views, spread evenly over them (``senerf-fit
+--test-views``: scoring fewer views where rendering all of them at full resolution takes long).
+
 Errors are :class:`senerf.errors.InputError` naming the command-line field (``--views``,
 ``--n-views``, ``--protocol``): unknown protocol or scene, out-of-range or duplicate view index, too many
 views, an empty test set where the protocol needs one.
@@ -42,7 +45,7 @@ from ..errors import InputError
 from .llff import LLFF_HOLDOUT
 from .scene import Scene
 
-__all__ = ["fewshot_split", "PROTOCOLS", "EXTREME_VIEWS", "INFONERF4_VIEWS", "LLFF_HOLDOUT"]
+__all__ = ["fewshot_split", "spread_views", "PROTOCOLS", "EXTREME_VIEWS", "INFONERF4_VIEWS", "LLFF_HOLDOUT"]
 
 #: NeRF Synthetic Extreme (3 views, indices into the train split), REFERENCE section 5.
 EXTREME_VIEWS = {
@@ -112,6 +115,24 @@ def _test_split(scene: Scene, protocol: str) -> np.ndarray:
 def _evenly(n: int, k: int) -> np.ndarray:
     """``k`` of ``n`` positions spread evenly: ``round(linspace(0, n - 1, k))`` (half to even), int64 ``(k,)``."""
     return np.round(np.linspace(0, n - 1, k)).astype(np.int64)
+
+
+def spread_views(idx, k: int, field: str = "--test-views") -> np.ndarray:
+    """``k`` of the view indices ``idx (n,)`` spread evenly over them, the first and the last included:
+    ``idx[round(linspace(0, n - 1, k))]`` (rounding half to even), int64 ``(k,)`` in ``idx``'s order; all of
+    ``idx`` when ``k`` is ``n``.
+
+    Example:
+        >>> spread_views(np.arange(100, 300), 5).tolist()
+        [100, 150, 200, 249, 299]
+
+    Raises:
+        InputError: naming ``field`` when ``k`` is below 1 or above ``n``.
+    """
+    idx = np.asarray(idx, dtype=np.int64).reshape(-1)
+    if isinstance(k, bool) or not isinstance(k, numbers.Integral) or not 1 <= k <= idx.size:
+        raise InputError(f"expected a number of views from 1 to the {idx.size} there are, got {k!r}", field=field)
+    return idx[_evenly(idx.size, int(k))]
 
 
 def _is_split_scene(scene: Scene) -> bool:
