@@ -696,6 +696,11 @@ def _run(args, argv: list[str]) -> int:
         shutil.rmtree(record, ignore_errors=True)   # the output landed: its frames are not needed again
         gifs = "rgb.gif, depth.gif and compare.gif" if compare is not None else "rgb.gif and depth.gif"
         print(f"{PROG}: {len(c2w)} frames, {gifs} in {written}")
+    except KeyboardInterrupt:   # say where the frames wait (run_command then prints the interrupt line)
+        kept = len(list(record.glob("*.npz"))) if record.is_dir() else 0
+        if kept:
+            print(f"{PROG}: {kept} rendered frame{'s' if kept > 1 else ''} kept in {record}", file=sys.stderr)
+        raise
     finally:
         _remove_if_empty(record)   # interrupted before its first frame
         if not out.exists():

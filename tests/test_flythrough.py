@@ -785,6 +785,7 @@ def test_an_interrupted_render_resumes_where_it_stopped_with_the_same_frames(run
     spy.stop_at = 7 if compare else 3   # Ctrl-C in the teacher's third frame / the third frame
     assert main([str(runs.st), "--out", str(out), *flags]) == 130
     err = capsys.readouterr().err
+    assert f"senerf-render: {6 if compare else 2} rendered frames kept in {frames_record(out)}\n" in err
     assert "the frames rendered so far are kept: rerun the same command to resume" in err
     assert not out.exists()
     kept = sorted(p.name for p in frames_record(out).iterdir())
