@@ -408,7 +408,8 @@ def _run_baseline(scene, train_idx, test_idx, model, train_cfg, out: Path, argv,
     metrics["iterations"].append(iteration_row(0, ev, None, seconds))
     metrics["seconds_total"] = seconds
     atomic_write_text(out / "metrics.json", json.dumps(metrics, indent=1))
-    eval_record.unlink(missing_ok=True)
+    # the evaluation record stays: self-training that extends this run reads the teacher's scores back from it
+    # instead of rendering every test view again (it removes the record once its own metrics.json holds them)
     return metrics
 
 

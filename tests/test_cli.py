@@ -818,3 +818,26 @@ def test_spread_views_keeps_the_ends_and_spreads_the_rest():
     for bad in (0, 201, 2.0, True):
         with pytest.raises(InputError, match="--test-views"):
             spread_views(idx, bad)
+
+
+def test_self_training_that_extends_a_baseline_run_does_not_score_the_teacher_again(tiny_scene, tmp_path, capsys,
+                                                                                   render_spy):
+    # Extending a baseline-only run rendered and scored every test view of iteration 0 again (the baseline had
+    # deleted its evaluation record; at 403e181): 150 s for lego's 200 test views at 400x400.
+    out = tmp_path / "o"
+    argv = [str(tiny_scene), "--out", str(out), *SMALL, "--views", "0,1,3", "--features", "daisy",
+            "--pseudo-views", "1"]
+    assert main(argv) == 0
+    baseline = json.loads((out / "metrics.json").read_text())["iterations"]
+    assert render_spy.calls == 2 and (out / "checkpoints" / "iter_0_eval.json").is_file()
+    from senerf.train import load_checkpoint
+
+    recorded = (load_checkpoint(out / "checkpoints" / "iter_0_train.pt")["seconds"]
+                + json.loads((out / "checkpoints" / "iter_0_eval.json").read_text())["seconds"])
+    render_spy.calls = 0
+    assert main([*argv, "--iterations", "1"]) == 0
+    rows = json.loads((out / "metrics.json").read_text())["iterations"]
+    assert render_spy.calls == 2   # iteration 1's two test views; iteration 0's were read back
+    assert rows[0]["per_view"] == baseline[0]["per_view"] and rows[0]["psnr"] == baseline[0]["psnr"]
+    assert recorded <= rows[0]["seconds"] < baseline[0]["seconds"] + 5.0   # the recorded training and scoring
+    assert not list((out / "checkpoints").glob("iter_*_eval.json"))   # removed once metrics.json holds them
