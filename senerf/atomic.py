@@ -115,12 +115,14 @@ def atomic_write_text(path: str | Path, text: str) -> None:
     atomic_write_bytes(path, text.encode("utf-8"))
 
 
-def write_npz_record(path: str | Path, digest: str, arrays: dict, **scalars: float) -> None:
+def write_npz_record(path: str | Path, digest: str, arrays: dict, compress: bool = False, **scalars: float) -> None:
     """Write ``arrays`` (name: array) and float ``scalars`` to the ``.npz`` file ``path`` atomically, stamped with
-    ``digest`` (a string naming everything the arrays depend on); ``path``'s folder is created."""
+    ``digest`` (a string naming everything the arrays depend on), zlib-compressed with ``compress``; ``path``'s
+    folder is created."""
     buf = io.BytesIO()
-    np.savez(buf, digest=np.str_(digest), **{name: np.float64(v) for name, v in scalars.items()},
-             **{name: np.asarray(a) for name, a in arrays.items()})
+    save = np.savez_compressed if compress else np.savez
+    save(buf, digest=np.str_(digest), **{name: np.float64(v) for name, v in scalars.items()},
+         **{name: np.asarray(a) for name, a in arrays.items()})
     atomic_write_bytes(path, buf.getvalue())
 
 
@@ -137,7 +139,7 @@ def read_npz_record(path: str | Path, digest: str, layout: dict, scalars: tuple[
                 return None
             out = {name: np.array(f[name]) for name in layout}
             out.update({name: float(f[name]) for name in scalars})
-    except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile):
+    except (OSError, ValueError, KeyError, EOFError, TypeError, zipfile.BadZipFile):   # TypeError: a bare .npy
         return None
     for name, (shape, dtype) in layout.items():
         if out[name].shape != tuple(shape) or out[name].dtype != np.dtype(dtype):

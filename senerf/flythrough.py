@@ -12,9 +12,9 @@ whole path, so the colours do not flicker), ``rgb.gif``, ``depth.gif`` and ``pat
 camera-to-world in the scene's world frame, and the intrinsics); with ``--compare`` also ``compare.gif``, the
 teacher (iteration 0) beside the rendered iteration along the same path.  The output folder is written once every
 frame is rendered and appears whole, by one rename.  Until then each rendered frame is kept in a hidden folder
-beside it (``.<name>.frames``, :func:`frames_record`), so that a render interrupted (Ctrl-C, SIGTERM, a kill, a
-full disk) goes on where it stopped when the same command is run again, with the same frames to the bit; that
-folder is removed once the output lands.
+beside it (``.<name>.frames``, :func:`frames_record`, marked as senerf-render's), so that a render interrupted
+(Ctrl-C, SIGTERM, a kill, a full disk) goes on where it stopped when the same command is run again, with the same
+frames to the bit (on the same kind of device); that folder is removed once the output lands.
 
 Exit status: 0 done, 2 bad input (one line ``senerf-render: error: ...`` naming the file or flag), 130
 interrupted (Ctrl-C or SIGTERM; no output is written, the frames rendered so far are kept), 1 internal error.
@@ -347,8 +347,44 @@ def frames_record(out: Path) -> Path:
     return out.with_name(f".{out.name}.frames")
 
 
+#: The file that marks a frames record as senerf-render's (only such a folder is written into and removed).
+_RECORD_MARK = ".senerf-render-frames"
+#: The names senerf-render writes into a frames record: the frames and atomic_write's temporaries of them.
+_RECORD_FILES = re.compile(r"(frame|teacher)_\d{3,}\.npz|\.(frame|teacher)_\d{3,}\.npz\.[0-9a-f]+\.tmp")
+
+
+def _open_record(record: Path) -> int:
+    """Make the frames record ``record`` (marked as ours) or check that an existing one is ours; returns the
+    frames it holds.  A folder of that name senerf-render did not mark is an :class:`InputError`."""
+    if record.exists() or record.is_symlink():
+        if record.is_symlink() or not record.is_dir() or not (record / _RECORD_MARK).is_file():
+            raise InputError("is in the way: senerf-render keeps the frames of an unfinished render there, and did "
+                             "not make this; move it or choose another --out", file=record)
+        return sum(1 for p in record.iterdir() if p.suffix == ".npz" and _RECORD_FILES.fullmatch(p.name))
+    record.mkdir()
+    (record / _RECORD_MARK).touch()
+    return 0
+
+
+def _close_record(record: Path, landed: bool) -> None:
+    """Remove the frames record once the output ``landed``, or when it holds no frame (an interrupt before the
+    first one): only the files senerf-render wrote there, then the folder when nothing else is left."""
+    if record.is_symlink() or not (record / _RECORD_MARK).is_file():
+        return
+    ours = [p for p in record.iterdir() if _RECORD_FILES.fullmatch(p.name)]
+    if not landed and any(p.suffix == ".npz" for p in ours):
+        return   # kept for the rerun
+    for p in [*ours, record / _RECORD_MARK]:
+        p.unlink(missing_ok=True)
+    try:
+        record.rmdir()
+    except OSError:   # something else was put there: it stays
+        pass
+
+
 def _frame_digest(base: str, c2w: np.ndarray, k) -> str:
-    """SHA-256 naming one frame: ``base`` (the field, its grid and the model) and the frame's camera."""
+    """SHA-256 naming one frame: ``base`` (the field, its grid, the model and the device) and the frame's
+    camera."""
     h = hashlib.sha256(base.encode())
     h.update(np.ascontiguousarray(c2w, dtype=np.float64).tobytes())
     h.update(repr(k).encode())
@@ -365,10 +401,12 @@ def render_frames(run: FittedRun, c2w: np.ndarray, intrinsics, device=None, prog
     """Render the path: ``rgb (n, H, W, 3)`` uint8, ``depth (n, H, W, 3)`` uint8 colour-mapped over one
     depth range for all frames (1st-99th percentile of the opaque pixels), ``z_depth``/``acc (n, H, W)``.
 
-    With ``resume`` (a folder), each frame is written there as ``NAME_XXX.npz`` as soon as it is rendered,
-    stamped with a digest of the field, its grid, the model and the frame's camera, and a frame already there
-    under its digest is read back instead of rendered (``read_back`` in the result counts them): an interrupted
-    render goes on where it stopped, with the same frames to the bit."""
+    With ``resume`` (a folder), each frame is written there as ``NAME_XXX.npz`` (compressed) as soon as it is
+    rendered, stamped with a digest of the field, its grid, the model, the device type and the frame's camera,
+    and a frame already there under its digest is read back instead of rendered (``read_back`` in the result
+    counts them): an interrupted render goes on where it stopped, with the same frames to the bit."""
+    import torch
+
     from senerf.atomic import read_npz_record, write_npz_record
     from senerf.train import depth_to_color, per_view_intrinsics, render_views
     from senerf.train.evaluate import evaluation_digest, to_uint8
@@ -378,7 +416,10 @@ def render_frames(run: FittedRun, c2w: np.ndarray, intrinsics, device=None, prog
     size = per_view[0].size
     layout = _frame_layout(size)
     frames = {key: np.empty((len(c2w), *shape), dtype) for key, (shape, dtype) in layout.items()}
-    base = None if resume is None else evaluation_digest(run.field, run.occupancy, run.model, run.scene, [])
+    base = None
+    if resume is not None:   # CPU and CUDA renders differ in their last bits
+        where = torch.device(device) if device is not None else next(run.field.parameters()).device
+        base = evaluation_digest(run.field, run.occupancy, run.model, run.scene, []) + where.type
     todo = []
     for i, (pose, k) in enumerate(zip(c2w, per_view)):
         digest = None if resume is None else _frame_digest(base, pose, k)
@@ -403,7 +444,7 @@ def render_frames(run: FittedRun, c2w: np.ndarray, intrinsics, device=None, prog
             for key in layout:   # as senerf-fit's PNGs, a frame at a time
                 frames[key][i] = frame[key]
             if resume is not None:
-                write_npz_record(Path(resume) / f"{name}_{i:03d}.npz", digest, frame)
+                write_npz_record(Path(resume) / f"{name}_{i:03d}.npz", digest, frame, compress=True)
             if bar is not None:
                 bar.update()
     finally:
@@ -481,13 +522,6 @@ def write_frames(out: Path, frames: dict, record: dict, fps: float, overwrite: b
         if tmp.exists():
             shutil.rmtree(tmp, ignore_errors=True)
     return out
-
-
-def _remove_if_empty(folder: Path) -> None:
-    try:
-        folder.rmdir()
-    except OSError:   # holds frames (kept for the rerun), or is not there
-        pass
 
 
 def _missing_folders(folder: Path) -> list[Path]:
@@ -668,10 +702,11 @@ def _run(args, argv: list[str]) -> int:
     record = frames_record(out)
     try:
         shutil.rmtree(_temp_sibling(out))   # the folder can be written: found out before rendering, not after
+        found = _open_record(record)
         print(f"{PROG}: {run.scene.name}, iteration {run.iteration}{' and the teacher' if teacher else ''}, {path} "
               f"path: {len(c2w)} frames at {intrinsics[0].width}x{intrinsics[0].height}")
-        if record.is_dir():
-            print(f"{PROG}: frames of an interrupted render found in {record}")
+        if found:
+            print(f"{PROG}: {found} frame{'s' if found > 1 else ''} of an interrupted render found in {record}")
         frames = render_frames(run, c2w, intrinsics, device=device, progress=not args.quiet, resume=record)
         compare, read_back = None, frames["read_back"]
         if teacher is not None:
@@ -693,16 +728,16 @@ def _run(args, argv: list[str]) -> int:
         except InputError as exc:   # a full disk, say: the frames stay for the rerun
             raise InputError(f"{exc.problem}; the rendered frames are kept in {record}: rerun the same command to "
                              f"write them", file=exc.file, field=exc.field) from None
-        shutil.rmtree(record, ignore_errors=True)   # the output landed: its frames are not needed again
+        _close_record(record, landed=True)   # its frames are not needed again
         gifs = "rgb.gif, depth.gif and compare.gif" if compare is not None else "rgb.gif and depth.gif"
         print(f"{PROG}: {len(c2w)} frames, {gifs} in {written}")
     except KeyboardInterrupt:   # say where the frames wait (run_command then prints the interrupt line)
-        kept = len(list(record.glob("*.npz"))) if record.is_dir() else 0
+        kept = len([p for p in record.glob("*.npz") if _RECORD_FILES.fullmatch(p.name)]) if record.is_dir() else 0
         if kept:
             print(f"{PROG}: {kept} rendered frame{'s' if kept > 1 else ''} kept in {record}", file=sys.stderr)
         raise
     finally:
-        _remove_if_empty(record)   # interrupted before its first frame
+        _close_record(record, landed=False)   # interrupted before its first frame: nothing to keep
         if not out.exists():
             for folder in created:   # deepest first; one that holds anything stays
                 try:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import re
 import shutil
@@ -216,7 +217,7 @@ def test_out_is_replaced_only_when_it_is_ours_and_never_half_written(runs, tmp_p
     assert kept in _error(capsys)
     assert len(json.loads((out / "path.json").read_text())["c2w"]) == 2
     assert [p.name for p in tmp_path.iterdir() if p.name.startswith(".r.")] == [".r.frames"]   # for the rerun
-    assert sorted(p.name for p in frames_record(out).iterdir()) == [f"frame_{i:03d}.npz" for i in range(4)]
+    assert sorted(p.name for p in frames_record(out).glob("*.npz")) == [f"frame_{i:03d}.npz" for i in range(4)]
     monkeypatch.undo()
     assert main([*argv, "--overwrite", "--frames", "4"]) == 0   # space again: written from the kept frames
     assert "(4 frames read back, not rendered again)" in capsys.readouterr().out
@@ -788,14 +789,14 @@ def test_an_interrupted_render_resumes_where_it_stopped_with_the_same_frames(run
     assert f"senerf-render: {6 if compare else 2} rendered frames kept in {frames_record(out)}\n" in err
     assert "the frames rendered so far are kept: rerun the same command to resume" in err
     assert not out.exists()
-    kept = sorted(p.name for p in frames_record(out).iterdir())
+    kept = sorted(p.name for p in frames_record(out).glob("*.npz"))
     done = [f"frame_{i:03d}.npz" for i in range(4)] + ["teacher_000.npz", "teacher_001.npz"] if compare else \
         ["frame_000.npz", "frame_001.npz"]
     assert kept == done
     spy.calls, spy.stop_at = 0, None
     assert main([str(runs.st), "--out", str(out), *flags]) == 0
     printed = capsys.readouterr().out
-    assert f"frames of an interrupted render found in {frames_record(out)}" in printed
+    assert f"{len(kept)} frames of an interrupted render found in {frames_record(out)}" in printed
     assert f"({len(kept)} frames read back, not rendered again)" in printed
     assert spy.calls == (8 if compare else 4) - len(kept)   # only the frames the record lacked
     resumed, reference = _files(out), _files(whole)
@@ -848,3 +849,122 @@ def test_frame_records_are_read_only_under_their_digest_and_layout(tmp_path):
     path.write_bytes(path.read_bytes()[:40])
     assert read_npz_record(path, "abc", layout) is None   # truncated
     assert [p.name for p in path.parent.iterdir()] == ["f.npz"]   # no temporary left by the write
+
+
+def _fake_frames(monkeypatch) -> list:
+    """``render_views`` replaced by one that renders a flat grey frame and counts its calls."""
+    import senerf.train
+
+    calls = []
+
+    def one(field, model, k, c2w, **kwargs):
+        calls.append(1)
+        h, w = k.height, k.width
+        return dict(rgb=np.full((1, h, w, 3), 0.5, np.float32), z_depth=np.ones((1, h, w), np.float32),
+                    acc=np.ones((1, h, w), np.float32))
+
+    monkeypatch.setattr(senerf.train, "render_views", one)
+    return calls
+
+
+def _linear(value: float):
+    import torch
+
+    m = torch.nn.Linear(1, 1)
+    with torch.no_grad():
+        m.weight.fill_(value)
+        m.bias.fill_(0.0)
+    return m
+
+
+def test_a_kept_frame_is_read_back_only_for_the_same_field_grid_model_device_and_camera(tmp_path, monkeypatch):
+    """Each part of the frame digest on its own (a review's mutants: dropping the field, the grid, the model or
+    the focal length from it went unnoticed, as the command line changes them together)."""
+    from senerf.train import ModelConfig
+
+    calls = _fake_frames(monkeypatch)
+    c2w = np.tile(np.eye(4), (2, 1, 1))
+    scene = types.SimpleNamespace(c2w=np.zeros((1, 4, 4)), alpha=None)
+
+    def run(field=0.0, grid=0.0, model=ModelConfig()):
+        return types.SimpleNamespace(field=_linear(field), occupancy=_linear(grid), model=model, scene=scene)
+
+    def render(r, k=_K8, device=None):
+        calls.clear()
+        out = render_frames(r, c2w, k, device=device, progress=False, resume=tmp_path / "rec")
+        return len(calls), out["read_back"]
+
+    assert render(run()) == (2, 0)
+    assert render(run()) == (0, 2)   # the same: read back
+    assert render(run(field=1.0)) == (2, 0)   # another field, the same grid
+    assert render(run(1.0, grid=1.0)) == (2, 0)   # another grid, the same field
+    other = dataclasses.replace(ModelConfig(), n_samples=ModelConfig().n_samples + 1)
+    assert render(run(1.0, 1.0, other)) == (2, 0)   # another model
+    assert render(run(1.0, 1.0, other), Intrinsics(9.0, 9.0, 4.0, 4.0, 8, 8)) == (2, 0)   # another focal, 8x8
+    assert render(run(1.0, 1.0, other), Intrinsics(9.0, 9.0, 4.0, 4.0, 8, 8)) == (0, 2)
+    assert render(run(1.0, 1.0, other), Intrinsics(9.0, 9.0, 4.0, 4.0, 8, 8), device="meta") == (2, 0)
+
+
+def test_an_interrupt_while_the_first_frame_is_written_leaves_no_record(runs, tmp_path, capsys, monkeypatch):
+    import senerf.atomic
+
+    def interrupted(fd):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(senerf.atomic.os, "fsync", interrupted)
+    out = tmp_path / "a" / "out"
+    assert main([str(runs.st), "--out", str(out), "--frames", "2", "--quiet"]) == 130
+    assert "kept in" not in capsys.readouterr().err
+    assert not frames_record(out).exists() and not (tmp_path / "a").exists()
+
+
+def test_a_record_is_replaced_atomically_and_a_bare_npy_is_not_one(tmp_path, monkeypatch):
+    import senerf.atomic
+    from senerf.atomic import read_npz_record, write_npz_record
+
+    layout = dict(acc=((2,), np.float32))
+    path = tmp_path / "f.npz"
+    write_npz_record(path, "d", dict(acc=np.ones(2, np.float32)), compress=True)
+
+    def interrupted(fd):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(senerf.atomic.os, "fsync", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        write_npz_record(path, "d", dict(acc=np.zeros(2, np.float32)))
+    monkeypatch.undo()
+    assert read_npz_record(path, "d", layout)["acc"].tolist() == [1.0, 1.0]   # the old record, whole
+    assert [p.name for p in tmp_path.iterdir()] == ["f.npz"]
+    np.save(tmp_path / "g.npy", np.ones(2))
+    (tmp_path / "g.npy").rename(tmp_path / "g.npz")
+    assert read_npz_record(tmp_path / "g.npz", "d", layout) is None   # np.load gives an array: not a record
+
+
+def test_a_folder_in_the_records_place_that_senerf_render_did_not_make_is_refused_and_kept(runs, tmp_path, capsys):
+    mine = tmp_path / ".o.frames"
+    mine.mkdir()
+    (mine / "notes.txt").write_text("mine")
+    assert main([str(runs.st), "--out", str(tmp_path / "o"), "--frames", "2", "--quiet"]) == 2
+    assert f"{mine}: is in the way: senerf-render keeps the frames of an unfinished render there" in _error(capsys)
+    assert (mine / "notes.txt").read_text() == "mine" and not (tmp_path / "o").exists()
+    (mine / "notes.txt").unlink()
+    assert main([str(runs.st), "--out", str(tmp_path / "o"), "--frames", "2", "--quiet"]) == 2   # empty, not ours
+    capsys.readouterr()
+    mine.rmdir()
+    assert main([str(runs.st), "--out", str(tmp_path / "o"), "--frames", "2", "--quiet"]) == 0
+    assert not mine.exists()
+
+
+def test_files_put_into_a_record_survive_its_removal(runs, tmp_path, capsys, monkeypatch):
+    import senerf.train
+    from tests.conftest import CallSpy
+
+    out = tmp_path / "o"
+    spy = CallSpy(senerf.train.render_views)
+    monkeypatch.setattr(senerf.train, "render_views", spy)
+    spy.stop_at = 2
+    assert main([str(runs.st), "--out", str(out), "--frames", "2", "--quiet"]) == 130
+    (frames_record(out) / "notes.txt").write_text("mine")
+    spy.stop_at = None
+    assert main([str(runs.st), "--out", str(out), "--frames", "2", "--quiet"]) == 0
+    assert sorted(p.name for p in frames_record(out).iterdir()) == ["notes.txt"]   # the frames and mark gone
