@@ -409,7 +409,7 @@ def render_frames(run: FittedRun, c2w: np.ndarray, intrinsics, device=None, prog
 
     from senerf.atomic import read_npz_record, write_npz_record
     from senerf.train import depth_to_color, per_view_intrinsics, render_views
-    from senerf.train.evaluate import evaluation_digest, to_uint8
+    from senerf.train.evaluate import field_digest, to_uint8
 
     c2w = np.asarray(c2w, dtype=np.float64)
     per_view = per_view_intrinsics(intrinsics, len(c2w))
@@ -419,7 +419,7 @@ def render_frames(run: FittedRun, c2w: np.ndarray, intrinsics, device=None, prog
     base = None
     if resume is not None:   # CPU and CUDA renders differ in their last bits
         where = torch.device(device) if device is not None else next(run.field.parameters()).device
-        base = evaluation_digest(run.field, run.occupancy, run.model, run.scene, []) + where.type
+        base = field_digest(run.field, run.occupancy, run.model) + where.type
     todo = []
     for i, (pose, k) in enumerate(zip(c2w, per_view)):
         digest = None if resume is None else _frame_digest(base, pose, k)

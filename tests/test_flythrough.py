@@ -72,7 +72,7 @@ def test_default_orbit_writes_frames_gifs_and_the_poses(runs, capsys):
         gif = iio.imread(out / f"{name}.gif", index=None)
         assert gif.shape[:3] == (6, 16, 16)
         assert iio.immeta(out / f"{name}.gif")["duration"] == 100
-    np.testing.assert_array_equal(iio.imread(out / f"rgb_000.png"), iio.imread(out / "rgb.gif", index=0)[..., :3])
+    np.testing.assert_array_equal(iio.imread(out / "rgb_000.png"), iio.imread(out / "rgb.gif", index=0)[..., :3])
 
 
 def test_scale_elevation_and_one_depth_range_for_the_whole_path(runs, tmp_path):
@@ -92,28 +92,32 @@ def test_scale_elevation_and_one_depth_range_for_the_whole_path(runs, tmp_path):
 _K8 = Intrinsics(8.0, 8.0, 4.0, 4.0, 8, 8)
 
 
-def _render_one_frame_at_a_time(monkeypatch, fake: dict) -> None:
+def _fake_renders(monkeypatch, fake: dict | None = None) -> list:
     """``render_views`` replaced by one that hands out ``fake``'s frames in order, one per call (as
-    :func:`render_frames` asks for them)."""
+    :func:`render_frames` asks for them), or without ``fake`` a flat grey frame of the camera's size; returns the
+    list its calls are appended to."""
     import senerf.train
 
-    calls = iter(range(len(fake["rgb"])))
+    calls = []
 
-    def one(*args, **kwargs):
-        i = next(calls)
-        return {key: np.asarray(value)[i:i + 1] for key, value in fake.items()}
+    def one(field, model, k, c2w, **kwargs):
+        calls.append(1)
+        if fake is not None:
+            return {key: np.asarray(value)[len(calls) - 1:len(calls)] for key, value in fake.items()}
+        h, w = k.height, k.width
+        return dict(rgb=np.full((1, h, w, 3), 0.5, np.float32), z_depth=np.ones((1, h, w), np.float32),
+                    acc=np.ones((1, h, w), np.float32))
 
     monkeypatch.setattr(senerf.train, "render_views", one)
+    return calls
 
 
 def test_one_depth_colour_range_for_the_whole_path(runs, monkeypatch):
     """The same depth gets the same colour in every frame (per-frame ranges would give 1.5 two colours)."""
-    import senerf.train
-
     z = np.stack([np.linspace(1.0, 2.0, 64).reshape(8, 8), np.linspace(1.0, 4.0, 64).reshape(8, 8)]).astype(np.float32)
     z[0, 0, 7] = z[1, 0, 5] = 1.5
     fake = dict(rgb=np.zeros((2, 8, 8, 3), np.float32), z_depth=z, acc=np.ones((2, 8, 8), np.float32))
-    _render_one_frame_at_a_time(monkeypatch, fake)
+    _fake_renders(monkeypatch, fake)
     run = types.SimpleNamespace(field=None, model=types.SimpleNamespace(eval_background="white"), occupancy=None)
     depth = render_frames(run, np.zeros((2, 4, 4)), _K8, progress=False)["depth"]
     np.testing.assert_array_equal(depth[0, 0, 7], depth[1, 0, 5])
@@ -403,8 +407,6 @@ def test_the_spiral_of_an_object_scene_focuses_on_the_point_the_cameras_look_at(
 
 
 def test_depth_colours_span_the_1st_to_99th_percentile_of_opaque_pixels(monkeypatch):
-    import senerf.train
-
     # 101 opaque pixels at depths 0..100 (1st / 99th percentiles exactly 1 and 99), 20 half-transparent and 7
     # empty ones far away (left out of the range), in two frames of 8 x 8
     z = np.full(128, 1000.0)
@@ -414,7 +416,7 @@ def test_depth_colours_span_the_1st_to_99th_percentile_of_opaque_pixels(monkeypa
     rgb[0], rgb[1] = -0.5, 1.5   # out-of-range colours are clipped, not wrapped around
     fake = dict(rgb=rgb.reshape(2, 8, 8, 3), z_depth=z.reshape(2, 8, 8), acc=acc.reshape(2, 8, 8))
     for background, grey in (("white", 255), ("black", 0)):
-        _render_one_frame_at_a_time(monkeypatch, fake)
+        _fake_renders(monkeypatch, fake)
         run = types.SimpleNamespace(field=None, model=types.SimpleNamespace(eval_background=background), occupancy=None)
         out = render_frames(run, np.zeros((2, 4, 4)), _K8, progress=False)
         depth = out["depth"].reshape(128, 3)
@@ -851,22 +853,6 @@ def test_frame_records_are_read_only_under_their_digest_and_layout(tmp_path):
     assert [p.name for p in path.parent.iterdir()] == ["f.npz"]   # no temporary left by the write
 
 
-def _fake_frames(monkeypatch) -> list:
-    """``render_views`` replaced by one that renders a flat grey frame and counts its calls."""
-    import senerf.train
-
-    calls = []
-
-    def one(field, model, k, c2w, **kwargs):
-        calls.append(1)
-        h, w = k.height, k.width
-        return dict(rgb=np.full((1, h, w, 3), 0.5, np.float32), z_depth=np.ones((1, h, w), np.float32),
-                    acc=np.ones((1, h, w), np.float32))
-
-    monkeypatch.setattr(senerf.train, "render_views", one)
-    return calls
-
-
 def _linear(value: float):
     import torch
 
@@ -882,12 +868,11 @@ def test_a_kept_frame_is_read_back_only_for_the_same_field_grid_model_device_and
     the focal length from it went unnoticed, as the command line changes them together)."""
     from senerf.train import ModelConfig
 
-    calls = _fake_frames(monkeypatch)
+    calls = _fake_renders(monkeypatch)
     c2w = np.tile(np.eye(4), (2, 1, 1))
-    scene = types.SimpleNamespace(c2w=np.zeros((1, 4, 4)), alpha=None)
 
     def run(field=0.0, grid=0.0, model=ModelConfig()):
-        return types.SimpleNamespace(field=_linear(field), occupancy=_linear(grid), model=model, scene=scene)
+        return types.SimpleNamespace(field=_linear(field), occupancy=_linear(grid), model=model)
 
     def render(r, k=_K8, device=None):
         calls.clear()

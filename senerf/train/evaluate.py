@@ -16,8 +16,8 @@ from .config import ModelConfig, config_to_dict
 from .metrics import LPIPS_UNAVAILABLE, psnr, ssim
 from .rays import camera_rays, per_view_intrinsics, ray_dist_to_z_depth
 
-__all__ = ["render_views", "evaluate", "evaluation_digest", "eval_images", "depth_to_color", "to_uint8",
-           "write_png"]
+__all__ = ["render_views", "evaluate", "evaluation_digest", "field_digest", "eval_images", "depth_to_color",
+           "to_uint8", "write_png"]
 
 
 def _background(name: str) -> tuple[float, float, float]:
@@ -212,9 +212,8 @@ def evaluate(field, scene, test_idx, out_dir: str | Path | None, model: ModelCon
                 seconds=seconds_before + time.perf_counter() - t0, seconds_before=seconds_before)
 
 
-def evaluation_digest(field, occupancy, model: ModelConfig, scene, test_idx) -> str:
-    """SHA-256 naming one evaluation: the field's and the occupancy grid's tensors, the model settings, the
-    test views' indices, cameras (image size included) and photos (what :func:`evaluate`'s figures depend on)."""
+def _field_hash(field, occupancy, model: ModelConfig):
+    """A SHA-256 hasher fed the field's and the occupancy grid's tensors and the model settings."""
     h = hashlib.sha256()
     for module in (field, occupancy):
         if module is None:
@@ -224,8 +223,21 @@ def evaluation_digest(field, occupancy, model: ModelConfig, scene, test_idx) -> 
             h.update(name.encode())
             h.update(str(tuple(value.shape)).encode() + str(value.dtype).encode())
             h.update(value.detach().cpu().contiguous().numpy().tobytes())
-    idx = np.asarray(test_idx, dtype=np.int64)
     h.update(json.dumps(config_to_dict(model), sort_keys=True, default=str).encode())
+    return h
+
+
+def field_digest(field, occupancy, model: ModelConfig) -> str:
+    """SHA-256 naming a fitted field: its and its occupancy grid's tensors and the model settings (what a render
+    from a given camera depends on, besides the device)."""
+    return _field_hash(field, occupancy, model).hexdigest()
+
+
+def evaluation_digest(field, occupancy, model: ModelConfig, scene, test_idx) -> str:
+    """SHA-256 naming one evaluation: the field's and the occupancy grid's tensors, the model settings, the
+    test views' indices, cameras (image size included) and photos (what :func:`evaluate`'s figures depend on)."""
+    h = _field_hash(field, occupancy, model)
+    idx = np.asarray(test_idx, dtype=np.int64)
     h.update(idx.tobytes())
     h.update(np.ascontiguousarray(np.asarray(scene.c2w)[idx], dtype=np.float64).tobytes())
     for i in idx:   # view by view: no copy of all the test photos
