@@ -405,7 +405,7 @@ def _run_baseline(scene, train_idx, test_idx, model, train_cfg, out: Path, argv,
     # interrupted calls' training and evaluation count too
     seconds = time.perf_counter() - t0 + result.seconds_before + ev["seconds_before"]
     metrics = metrics_document(scene, train_idx, test_idx, argv, config)
-    metrics["iterations"].append(iteration_row(0, ev, None, seconds))
+    metrics["iterations"].append(iteration_row(0, ev, None, seconds, train_cfg.device))
     metrics["seconds_total"] = seconds
     atomic_write_text(out / "metrics.json", json.dumps(metrics, indent=1))
     # the evaluation record stays: self-training that extends this run reads the teacher's scores back from it

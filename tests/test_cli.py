@@ -83,7 +83,9 @@ def test_tiny_end_to_end_fit_resume_and_overwrite(tiny_scene, tmp_path, capsys):
     assert metrics["resolution"] == [16, 16] and len(metrics["train_views"]) == 5 and len(metrics["test_views"]) == 2
     assert metrics["command"][0] == "senerf-fit" and metrics["config"]["train"]["steps"] == 24
     (it,) = metrics["iterations"]
-    assert set(it) == {"iteration", "psnr", "ssim", "lpips", "avg", "reliable_fraction", "seconds", "per_view"}
+    assert set(it) == {"iteration", "psnr", "ssim", "lpips", "avg", "reliable_fraction", "seconds", "per_view",
+                       "host"}
+    assert it["host"]["device"] == "cpu" and it["host"]["threads"] == __import__("torch").get_num_threads()
     assert it["iteration"] == 0 and it["lpips"] == "unavailable" and it["avg"] == "unavailable"
     assert it["reliable_fraction"] is None and len(it["per_view"]["psnr"]) == 2
     assert it["psnr"] == pytest.approx(sum(it["per_view"]["psnr"]) / 2)
@@ -481,6 +483,7 @@ def test_a_selftraining_fit_on_cuda_end_to_end_and_resumed(tiny_scene, tmp_path,
     assert [it["iteration"] for it in doc["iterations"]] == [0, 1]
     assert all(math.isfinite(it["psnr"]) for it in doc["iterations"])
     assert doc["config"]["train"]["device"] == "cuda" and (out / "checkpoints" / "teacher.pt").is_file()
+    assert all(it["host"]["device"] == __import__("torch").cuda.get_device_name() for it in doc["iterations"])
     capsys.readouterr()
     assert main(argv) == 0
     assert json.loads((out / "metrics.json").read_text())["iterations"] == doc["iterations"]

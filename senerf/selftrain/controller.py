@@ -736,7 +736,7 @@ def run_selftraining(scene, train_idx, test_idx, model, train_cfg, cfg: SelfTrai
                      + (f"; {found} labelled by an interrupted run found in {label_dir}" if found else ""))
             if extractor is None and cfg.reliability == "features":
                 extractor = make_feature_extractor(cfg.features, **(
-                    {"normalize_layers": cfg.normalize_layers} if cfg.features == "vgg19" else {}))
+                    {"normalize_layers": cfg.normalize_layers, "device": device} if cfg.features == "vgg19" else {}))
                 known_feats = functools.cache(
                     lambda: known_view_features(extractor, known_images(scene, train_idx, model)))
             if cfg.reliability == "oracle":
@@ -771,7 +771,8 @@ def run_selftraining(scene, train_idx, test_idx, model, train_cfg, cfg: SelfTrai
         carried += ev["seconds_before"] + labelled_before
         rf = None if reliable_fraction is None or math.isnan(reliable_fraction) else float(reliable_fraction)
         metrics["iterations"].append(iteration_row(
-            k, ev, rf, time.perf_counter() - t_it + result.seconds_before + ev["seconds_before"] + labelled_before))
+            k, ev, rf, time.perf_counter() - t_it + result.seconds_before + ev["seconds_before"] + labelled_before,
+            device))
         _save_teacher(teacher_path, teacher, occupancy, k, settings, metrics["iterations"])
         _record_scene_files(files_record, files_now)
         metrics["seconds_total"] = seconds_before + carried + time.perf_counter() - t_run

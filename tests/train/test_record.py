@@ -19,3 +19,29 @@ def test_finished_metrics_reads_a_run_through_the_iteration_asked_for(tmp_path):
     assert finished_metrics(tmp_path, 2) is None                       # iteration 2 not finished
     (tmp_path / "metrics.json").write_text(json.dumps([1, 2]))
     assert finished_metrics(tmp_path) is None                          # not a metrics document
+
+
+def test_each_row_records_the_host_that_finished_it(monkeypatch):
+    """A fit's figures depend on torch's thread count on the CPU (the float sums' order) and are not repeatable
+    on CUDA: every row says where it was made (device, threads, torch and NumPy versions)."""
+    import numpy as np
+    import torch
+
+    from senerf.train import host_record, iteration_row
+
+    ev = {"psnr": 20.0, "ssim": 0.5, "lpips": "unavailable", "avg": "unavailable", "per_view": {"psnr": [20.0]}}
+    threads = torch.get_num_threads()
+    try:
+        torch.set_num_threads(1)
+        assert host_record("cpu") == {"device": "cpu", "threads": 1, "torch": torch.__version__,
+                                      "numpy": np.__version__}
+        torch.set_num_threads(2)
+        row = iteration_row(1, ev, 0.25, 3.0, torch.device("cpu"))
+    finally:
+        torch.set_num_threads(threads)
+    assert row["host"]["threads"] == 2 and row["host"]["device"] == "cpu"
+    assert {k: row[k] for k in ("iteration", "psnr", "reliable_fraction", "seconds")} == {
+        "iteration": 1, "psnr": 20.0, "reliable_fraction": 0.25, "seconds": 3.0}
+    # a GPU is named, not just "cuda" (no GPU needed to check: torch is asked for the name)
+    monkeypatch.setattr(torch.cuda, "get_device_name", lambda device=None: f"Fake GPU {torch.device(device)}")
+    assert host_record("cuda:1")["device"] == "Fake GPU cuda:1"
