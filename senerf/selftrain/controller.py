@@ -52,7 +52,8 @@ from ..train import (atomic_write_text, build_field, camera_rays, config_to_dict
                      evaluate, finished_metrics, iteration_row, load_checkpoint, load_state_keeping_box, make_occupancy,
                      metrics_document, render_views, save_checkpoint, settings_differences, train_field, write_png)
 from .distill import DistillationLoss, DistillConfig, PseudoRays, prior_weights, unified_prior_weights
-from .features import FEATURE_NAMES, features_memory_problem, known_view_features, make_feature_extractor
+from .features import (FEATURE_NAMES, features_memory_problem, features_on_device, known_view_features,
+                       make_feature_extractor)
 from .labelrecord import (LABELLED_VIEW_ARRAYS, labelled_view_layout, labelling_digest, read_labelled_view,
                           write_labelled_view)
 from .reliability import (THRESHOLD_KINDS, gt_reliable_mask, mask_quality, resolve_threshold, threshold_weights,
@@ -241,7 +242,8 @@ def estimate_reliability(teacher, occupancy, model, scene, train_idx, pseudo_c2w
         extractor: a :class:`~senerf.selftrain.features.FeatureExtractor`.
         cfg: thresholds, occlusion tolerance, kernel.
         alpha: the adaptive threshold's alpha for this iteration.
-        known_features: (m, H, W, C) features of :func:`known_images` (an array or ``extractor.lazy(...)``), or a
+        known_features: (m, H, W, C) features of :func:`known_images` (an array, ``extractor.lazy(...)``, or a
+            tensor on the extractor's GPU when :func:`~senerf.selftrain.features.features_on_device`), or a
             function of no arguments returning them (called only when a view is labelled here, not read from
             ``resume``); computed with :func:`known_view_features` when None.
         renders: ``(known, pseudo)`` teacher renders (``senerf.train.render_views`` dicts of the known and the
@@ -306,7 +308,9 @@ def estimate_reliability(teacher, occupancy, model, scene, train_idx, pseudo_c2w
                                                            occupancy=occupancy, device=device).items()}
         else:
             view = {name: renders[1][name][i] for name in ("rgb", "z_depth", "acc")}
-        feats = extractor(np.clip(view["rgb"][None], 0.0, 1.0))[0]
+        # on a GPU the features stay there and view_similarity looks them up with torch
+        extract = extractor.device_features if features_on_device(extractor) else extractor
+        feats = extract(np.clip(view["rgb"][None], 0.0, 1.0))[0]
         res = view_similarity(feats, view["z_depth"], view["acc"], pseudo_k[i], pseudo_c2w[i],
                               known_features, known_z, known_intr, known_c2w,
                               opacity_threshold=cfg.opacity_threshold, rel_tol=cfg.occlusion_rel_tol,

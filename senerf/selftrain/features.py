@@ -42,6 +42,7 @@ __all__ = [
     "DaisyFeatures",
     "make_feature_extractor",
     "known_view_features",
+    "features_on_device",
     "EAGER_FEATURES_MEMORY_SHARE",
     "FEATURE_CHANNELS",
     "features_memory_problem",
@@ -222,6 +223,10 @@ class VGG19Features(FeatureExtractor):
     def feature_maps(self, images: np.ndarray) -> list[torch.Tensor]:
         """The four raw pre-pooling maps for a batch: list of ``(n, C_l, H_l, W_l)`` tensors on the host (computed
         on ``self.device``)."""
+        return [m.cpu() for m in self._device_maps(images)]
+
+    def _device_maps(self, images: np.ndarray) -> list[torch.Tensor]:
+        """:meth:`feature_maps` left on ``self.device``."""
         images = _check_images(images)
         x = self._preprocess(images).to(self.device)
         maps = []
@@ -233,7 +238,21 @@ class VGG19Features(FeatureExtractor):
                     w, b = self._convs[name]
                     x = F.relu(F.conv2d(x, w, b, padding=1))
                 maps.append(x)
-        return [m.cpu() for m in maps]
+        return maps
+
+    def device_features(self, images: np.ndarray) -> torch.Tensor:
+        """``__call__``'s features left on ``self.device``: ``images (n, H, W, 3)`` -> ``(n, H, W, 960)`` float32
+        tensor there (the same values to the bit on the CPU).  On a GPU the maps are upsampled there and never
+        cross to the host: a fit on CUDA labels with these (:func:`features_on_device`)."""
+        images = _check_images(images)
+        n, h, w, _ = images.shape
+        self._check_size(h, w)
+        out = torch.empty((n, h, w, self.channels), dtype=torch.float32, device=self.device)
+        for start in range(0, n, self.chunk):
+            maps = self._device_maps(images[start:start + self.chunk])
+            for j in range(maps[0].shape[0]):
+                self._expand_into(out[start + j], [m[j:j + 1] for m in maps])
+        return out
 
     def __call__(self, images: np.ndarray) -> np.ndarray:
         images = _check_images(images)
@@ -272,12 +291,14 @@ class VGG19Features(FeatureExtractor):
         if min(h, w) < 8:
             raise ValueError(f"VGG-19 features need images of at least 8x8 pixels, got {h}x{w}")
 
-    def _expand_into(self, out: np.ndarray, maps: list[torch.Tensor]) -> None:
-        """Write one view's features into ``out (H, W, C)``: its raw maps ``(1, C_l, H_l, W_l)`` upsampled to
-        ``H x W``, each layer L2-normalised per pixel when ``normalize_layers``, concatenated."""
+    def _expand_into(self, out: np.ndarray | torch.Tensor, maps: list[torch.Tensor]) -> None:
+        """Write one view's features into ``out (H, W, C)`` (an array, or a tensor on the maps' device): its raw
+        maps ``(1, C_l, H_l, W_l)`` upsampled to ``H x W``, each layer L2-normalised per pixel when
+        ``normalize_layers``, concatenated."""
         h, w = out.shape[:2]
         c0 = 0
-        dst = torch.from_numpy(out)   # torch's copy of the permuted map beats numpy's strided one (~20 %)
+        # torch's copy of the permuted map beats numpy's strided one (~20 %)
+        dst = out if isinstance(out, torch.Tensor) else torch.from_numpy(out)
         with torch.no_grad():
             for n_pools, mj in enumerate(maps):  # map l was taken after l pools
                 mj = _upsample_pooled(mj, n_pools, h, w)
@@ -381,11 +402,20 @@ def features_memory_problem(name: str, size: tuple, memory_bytes: int | None = N
             f"{daisy}or --iterations 0")
 
 
+def features_on_device(extractor) -> bool:
+    """Whether ``extractor`` computes on a GPU (a :class:`VGG19Features` built with a CUDA device): then labelling
+    keeps the features there (:meth:`VGG19Features.device_features`) and looks them up with torch."""
+    return hasattr(extractor, "device_features") and torch.device(extractor.device).type != "cpu"
+
+
 def known_view_features(extractor, images: np.ndarray, memory_bytes: int | None = None):
     """Features of the known ``images (m, H, W, 3)``: the full ``(m, H, W, C)`` array when it takes at most
     :data:`EAGER_FEATURES_MEMORY_SHARE` of ``memory_bytes`` (default: the machine's physical memory; the
     array when that is unknown), else ``extractor.lazy(images, keep=k)`` with ``k`` the number of views
-    whose full-size features fit in that share.  All give the same values."""
+    whose full-size features fit in that share.  All give the same values.  An extractor on a GPU
+    (:func:`features_on_device`) gives its :meth:`VGG19Features.device_features` tensor, held there."""
+    if features_on_device(extractor):
+        return extractor.device_features(images)
     if memory_bytes is None:
         memory_bytes = physical_memory_bytes()
         if memory_bytes is None:

@@ -1,4 +1,5 @@
-"""Ray reliability by feature consistency across views (NumPy; cameras only via ``senerf.geometry``).
+"""Ray reliability by feature consistency across views (NumPy; cameras only via ``senerf.geometry``; the
+feature lookups in torch on the features' device when they are handed over as tensors, as a CUDA fit does).
 
 A pseudo-view pixel, lifted with the teacher's rendered z-depth, is warped into every known view
 (``senerf.geometry.reproject`` with the known view's teacher-rendered z-depth as occlusion buffer).  The
@@ -151,7 +152,33 @@ def _as_intrinsics_list(intrinsics, k: int) -> list:
     return [intrinsics] * k
 
 
-_SAMPLE_CHUNK = 16384   # pixels per feature lookup in view_similarity
+_SAMPLE_CHUNK = 16384   # pixels per feature lookup in view_similarity (NumPy; 4 times as many in torch)
+
+
+def _lookup_similarity_torch(src_flat, idx: np.ndarray, features, uv: np.ndarray, eps: float = 1e-8) -> np.ndarray:
+    """:func:`bilinear_sample` of ``features (H', W', C)`` at ``uv (N, 2)`` and :func:`cosine_similarity` with
+    the rows ``idx (N,)`` of ``src_flat (H W, C)``, in torch on ``src_flat``'s device (the same corners, weights
+    and operations; float32 rounding apart, the same values): ``(N,)`` float32 on the host.  ``features`` may
+    be an array or a tensor."""
+    import torch
+
+    dev = src_flat.device
+    rows = torch.from_numpy(idx).to(dev)
+    feats = torch.as_tensor(features).to(dev, torch.float32)
+    h, w, c = feats.shape
+    flat = feats.reshape(h * w, c)
+    y0, x0, y1, x1, fy, fx = (torch.from_numpy(np.ascontiguousarray(a)).to(dev)
+                              for a in _bilinear_corners(h, w, uv))
+    out = torch.empty(uv.shape[0], dtype=torch.float32, device=dev)
+    step = 4 * _SAMPLE_CHUNK
+    for s in range(0, uv.shape[0], step):
+        p = slice(s, s + step)
+        top = flat[y0[p] * w + x0[p]] * (1 - fx[p]) + flat[y0[p] * w + x1[p]] * fx[p]
+        bottom = flat[y1[p] * w + x0[p]] * (1 - fx[p]) + flat[y1[p] * w + x1[p]] * fx[p]
+        b = top * (1 - fy[p]) + bottom * fy[p]
+        a = src_flat[rows[p]].to(torch.float32)
+        out[p] = (a * b).sum(-1) / (a.norm(dim=-1) * b.norm(dim=-1)).clamp_min(eps)
+    return out.cpu().numpy()
 
 
 def view_similarity(pseudo_features: np.ndarray, pseudo_z: np.ndarray, pseudo_opacity: np.ndarray,
@@ -162,7 +189,8 @@ def view_similarity(pseudo_features: np.ndarray, pseudo_z: np.ndarray, pseudo_op
     """Per-pixel feature consistency of one pseudo view against all known views.
 
     Args:
-        pseudo_features: (H, W, C) features of the teacher's pseudo-view render.
+        pseudo_features: (H, W, C) features of the teacher's pseudo-view render: an array, or a tensor (then the
+            feature lookups run in torch on its device, and ``known_features[j]`` may be tensors there too).
         pseudo_z: (H, W) teacher z-depth of the pseudo view.
         pseudo_opacity: (H, W) teacher accumulated opacity of the pseudo view.
         pseudo_intrinsics: ``geometry.Intrinsics`` of the pseudo view (size H x W).
@@ -183,7 +211,9 @@ def view_similarity(pseudo_features: np.ndarray, pseudo_z: np.ndarray, pseudo_op
     Returns:
         :class:`ViewSimilarity`.
     """
-    pseudo_features = np.asarray(pseudo_features, dtype=np.float32)
+    on_torch = not isinstance(pseudo_features, np.ndarray) and hasattr(pseudo_features, "device")
+    if not on_torch:
+        pseudo_features = np.asarray(pseudo_features, dtype=np.float32)
     if isinstance(known_features, (np.ndarray, list, tuple)):
         known_features = np.asarray(known_features, dtype=np.float32)
     pseudo_z = np.asarray(pseudo_z, dtype=np.float64)
@@ -228,12 +258,15 @@ def view_similarity(pseudo_features: np.ndarray, pseudo_z: np.ndarray, pseudo_op
             continue
         uv_j = np.asarray(uv_all[j]).reshape(-1, 2)
         out_j = per_view[j].reshape(-1)
-        features_j = np.asarray(known_features[j], dtype=np.float32)  # (H', W', C), built now when lazy
-        # in chunks: a (pixels, C) lookup makes ~6 temporaries of that size (4 GiB for a 504x378 view with
-        # VGG's 960 channels in one go; a few hundred MiB per chunk)
-        for start in range(0, idx.size, _SAMPLE_CHUNK):
-            part = idx[start:start + _SAMPLE_CHUNK]
-            out_j[part] = cosine_similarity(flat_src[part], bilinear_sample(features_j, uv_j[part]))
+        if on_torch:
+            out_j[idx] = _lookup_similarity_torch(flat_src, idx, known_features[j], uv_j[idx])
+        else:
+            features_j = np.asarray(known_features[j], dtype=np.float32)  # (H', W', C), built now when lazy
+            # in chunks: a (pixels, C) lookup makes ~6 temporaries of that size (4 GiB for a 504x378 view with
+            # VGG's 960 channels in one go; a few hundred MiB per chunk)
+            for start in range(0, idx.size, _SAMPLE_CHUNK):
+                part = idx[start:start + _SAMPLE_CHUNK]
+                out_j[part] = cosine_similarity(flat_src[part], bilinear_sample(features_j, uv_j[part]))
         bad = ~np.isfinite(out_j)   # a NaN render or photo: no match there, so it cannot veto another view
         if bad.any():
             out_j[bad] = NO_MATCH

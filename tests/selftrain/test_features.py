@@ -152,6 +152,25 @@ def test_vgg_on_the_cpu_device_is_the_default_to_the_bit(vgg, natural):
     assert all(m.device.type == "cpu" for m in named.feature_maps(img))
 
 
+def test_device_features_are_the_call_s_features_left_where_they_were_computed(natural):
+    """``device_features``: ``__call__``'s values as a tensor on the extractor's device (the CPU here: to the
+    bit, across conv chunks); labelling uses it only for an extractor on a GPU (``features_on_device``), and
+    ``known_view_features`` then hands the known views' features over on that device."""
+    from types import SimpleNamespace
+
+    from senerf.selftrain.features import features_on_device, known_view_features
+
+    ext = VGG19Features(chunk=2)
+    imgs = np.ascontiguousarray(np.stack([natural, natural[::-1], 1 - natural])[:, :40, :56])
+    got = ext.device_features(imgs)
+    assert isinstance(got, torch.Tensor) and got.device.type == "cpu" and got.dtype == torch.float32
+    assert np.array_equal(got.numpy(), ext(imgs))
+    assert not features_on_device(ext) and not features_on_device(DaisyFeatures())
+    on_gpu = SimpleNamespace(device=torch.device("cuda"), device_features=lambda images: ("on the GPU", images))
+    assert features_on_device(on_gpu) and not features_on_device(SimpleNamespace(device="cuda"))
+    assert known_view_features(on_gpu, imgs, memory_bytes=1) == ("on the GPU", imgs)   # not lazy, not on the host
+
+
 @pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA GPU")
 def test_vgg_on_cuda_matches_the_cpu(vgg, natural):
     """The convolutions on the GPU, the maps back on the host: the CPU's features within float32 rounding
@@ -164,6 +183,8 @@ def test_vgg_on_cuda_matches_the_cpu(vgg, natural):
     assert a.shape == b.shape and np.abs(a - b).max() < 2e-3
     lazy = gpu.lazy(img)
     assert np.array_equal(lazy[1], a[1])
+    kept = gpu.device_features(img)      # what a CUDA fit labels with: upsampled on the GPU, left there
+    assert kept.is_cuda and np.abs(kept.cpu().numpy() - a).max() < 1e-6
 
 
 def test_known_view_features_are_lazy_only_beyond_the_memory_share():

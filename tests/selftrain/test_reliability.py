@@ -325,3 +325,52 @@ def test_an_adaptive_quantile_on_a_tie_keeps_the_tied_pixels():
     with_bg = np.where(fg_flat, 0.93, 0.99)
     tau = resolve_threshold("adaptive", with_bg[fg_flat], alpha=0.15)
     assert threshold_weights(with_bg, fg_flat, "adaptive", tau=tau).sum() == 15.0
+
+
+def _devices():
+    import torch
+
+    return ["cpu"] + (["cuda"] if torch.cuda.is_available() else [])
+
+
+@pytest.mark.parametrize("device", _devices())
+@pytest.mark.parametrize("known_as", ["array", "tensor", "lazy"])
+def test_tensor_features_are_looked_up_in_torch_with_the_same_result(monkeypatch, device, known_as):
+    """Features handed over as tensors (a CUDA fit keeps VGG's features on the GPU) are looked up in torch on
+    their device: the NumPy path's valid views and NO_MATCH pixels exactly, its similarities within float32
+    rounding, across lookup chunks, with a partly dropped background and a NaN known view not counted."""
+    import torch
+
+    import senerf.selftrain.reliability as rel
+    from senerf.selftrain.features import LazyViewFeatures
+
+    kf, kz, kc, pf, pz, opacity = _two_known_views_and_a_pseudo_view()
+    opacity = opacity.copy()
+    opacity[:, :15] = 0.2
+    kf = kf.copy()
+    kf[1, :4] = np.nan      # a corrupt band in one known view
+    monkeypatch.setattr(rel, "_SAMPLE_CHUNK", 5)            # torch takes 4 x 5 pixels a chunk: many chunks
+    expect = view_similarity(pf, pz, opacity, K, camera(0.05), kf, kz, K, kc, foreground_only=True)
+    known = {"array": kf, "tensor": torch.from_numpy(kf).to(device),
+             "lazy": LazyViewFeatures(lambda j: kf[j].copy(), kf.shape)}[known_as]
+    got = view_similarity(torch.from_numpy(pf).to(device), pz, opacity, K, camera(0.05), known, kz, K, kc,
+                          foreground_only=True)
+    assert isinstance(got.similarity, np.ndarray) and got.similarity.dtype == np.float32
+    assert expect.valid.sum() > 4 * 5 * 3 and (expect.per_view == NO_MATCH).any()
+    np.testing.assert_array_equal(got.valid, expect.valid)
+    np.testing.assert_array_equal(got.per_view == NO_MATCH, expect.per_view == NO_MATCH)
+    np.testing.assert_allclose(got.per_view, expect.per_view, rtol=0, atol=2e-6)
+    np.testing.assert_allclose(got.similarity, expect.similarity, rtol=0, atol=2e-6)
+
+
+def test_a_zero_feature_vector_has_similarity_zero_in_torch_too():
+    import torch
+
+    from senerf.selftrain.reliability import _lookup_similarity_torch
+
+    feats = np.zeros((2, 2, 3), np.float32)
+    feats[0, 0] = (1.0, 2.0, 2.0)
+    src = torch.tensor([[0.0, 0.0, 0.0], [2.0, 4.0, 4.0]])
+    uv = np.array([[0.5, 0.5], [0.5, 0.5]])
+    assert _lookup_similarity_torch(src, np.array([0, 1]), feats, uv).tolist() == pytest.approx([0.0, 1.0])
+    assert _lookup_similarity_torch(src, np.array([1]), feats, np.array([[1.5, 1.5]])).tolist() == [0.0]
