@@ -52,8 +52,8 @@ from ..train import (atomic_write_text, build_field, camera_rays, config_to_dict
                      evaluate, finished_metrics, iteration_row, load_checkpoint, load_state_keeping_box, make_occupancy,
                      metrics_document, render_views, save_checkpoint, settings_differences, train_field, write_png)
 from .distill import DistillationLoss, DistillConfig, PseudoRays, prior_weights, unified_prior_weights
-from .features import (FEATURE_NAMES, features_memory_problem, features_on_device, known_view_features,
-                       make_feature_extractor)
+from .features import (FEATURE_NAMES, features_fit_gpu, features_memory_problem, features_on_device,
+                       known_view_features, make_feature_extractor)
 from .labelrecord import (LABELLED_VIEW_ARRAYS, labelled_view_layout, labelling_digest, read_labelled_view,
                           write_labelled_view)
 from .reliability import (THRESHOLD_KINDS, gt_reliable_mask, mask_quality, resolve_threshold, threshold_weights,
@@ -442,6 +442,21 @@ def oracle_reliability(teacher, occupancy, model, scene, pseudo_idx, cfg: SelfTr
                         prior=prior, neighbour=neighbour, empty=empty, intrinsics=intr)
 
 
+def _features_device(scene, train_idx, device, echo) -> torch.device:
+    """Where VGG-19 runs and labelling keeps its features: the fit's device, unless that is a GPU too small for
+    the known views' and a pseudo view's features (:func:`~senerf.selftrain.features.features_fit_gpu`): then
+    the host, said in one line."""
+    device = torch.device(device)
+    if device.type != "cuda":
+        return device
+    gpu = torch.cuda.get_device_properties(device.index or 0).total_memory
+    if features_fit_gpu(scene.size, len(train_idx), gpu):
+        return device
+    echo(f"selftrain: VGG-19 features of {len(train_idx)} known views at {scene.size[1]}x{scene.size[0]} take more "
+         f"than half of the GPU's {gpu / 2**30:.0f} GiB: computed and looked up on the host")
+    return torch.device("cpu")
+
+
 def _pseudo_rays(labels: PseudoLabels, model, device, q: int) -> PseudoRays:
     rays = camera_rays(labels.intrinsics, labels.c2w, model, device)
     t = lambda a: torch.as_tensor(np.ascontiguousarray(a), dtype=torch.float32, device=device)  # noqa: E731
@@ -740,7 +755,9 @@ def run_selftraining(scene, train_idx, test_idx, model, train_cfg, cfg: SelfTrai
                      + (f"; {found} labelled by an interrupted run found in {label_dir}" if found else ""))
             if extractor is None and cfg.reliability == "features":
                 extractor = make_feature_extractor(cfg.features, **(
-                    {"normalize_layers": cfg.normalize_layers, "device": device} if cfg.features == "vgg19" else {}))
+                    {"normalize_layers": cfg.normalize_layers, "device": _features_device(scene, train_idx, device,
+                                                                                       echo)}
+                    if cfg.features == "vgg19" else {}))
                 known_feats = functools.cache(
                     lambda: known_view_features(extractor, known_images(scene, train_idx, model)))
             if cfg.reliability == "oracle":

@@ -43,6 +43,8 @@ __all__ = [
     "make_feature_extractor",
     "known_view_features",
     "features_on_device",
+    "features_fit_gpu",
+    "GPU_FEATURES_MEMORY_SHARE",
     "EAGER_FEATURES_MEMORY_SHARE",
     "FEATURE_CHANNELS",
     "features_memory_problem",
@@ -400,6 +402,19 @@ def features_memory_problem(name: str, size: tuple, memory_bytes: int | None = N
     return (f"{name} reliability features of one {w}x{h} view take {view / 2**30:.1f} GiB and self-training holds "
             f"several at once, more than this machine's {have / 2**30:.0f} GiB allows; use a larger --downscale, "
             f"{daisy}or --iterations 0")
+
+
+#: Labelling on a GPU holds the known views' features and a pseudo view's there while they take at most this
+#: share of its memory (the rest is the fields', the renders' and the lookups'); beyond it they stay on the host.
+GPU_FEATURES_MEMORY_SHARE = 0.5
+
+
+def features_fit_gpu(size: tuple, n_views: int, gpu_bytes: int, channels: int = 960) -> bool:
+    """Whether ``n_views`` known views' features and a pseudo view's (two copies: its features and their
+    upsampling's temporaries), each ``(H, W, channels)`` float32 for ``size = (H, W)``, fit in
+    :data:`GPU_FEATURES_MEMORY_SHARE` of ``gpu_bytes``.  lego at 400x400, 3 views: 3.1 GB."""
+    h, w = size
+    return (int(n_views) + 2) * h * w * int(channels) * 4 <= GPU_FEATURES_MEMORY_SHARE * gpu_bytes
 
 
 def features_on_device(extractor) -> bool:

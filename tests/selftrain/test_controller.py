@@ -536,6 +536,26 @@ def test_vgg_features_run_on_the_fits_device(tiny_scene, tmp_path, monkeypatch):
     assert seen[1] == ("daisy", {})
 
 
+def test_vgg_features_stay_on_the_host_when_the_gpu_is_too_small(monkeypatch):
+    """A GPU with less than twice the features' size keeps VGG-19 (and the lookups) on the host, in one line;
+    a large one gets them (GPU memory asked of torch; no GPU needed for this)."""
+    from types import SimpleNamespace
+
+    import torch
+
+    scene = SimpleNamespace(size=(400, 300))
+    need = 5 * 400 * 300 * 960 * 4          # 3 known views + a pseudo view's two copies
+    for total, where in ((2 * need, "cuda"), (2 * need - 1, "cpu")):
+        monkeypatch.setattr(torch.cuda, "get_device_properties", lambda index: SimpleNamespace(total_memory=total))
+        lines = []
+        got = controller_mod._features_device(scene, [0, 1, 51], "cuda", lines.append)
+        assert got == torch.device(where)
+        assert lines == ([] if where == "cuda" else [
+            f"selftrain: VGG-19 features of 3 known views at 300x400 take more than half of the GPU's "
+            f"{total / 2**30:.0f} GiB: computed and looked up on the host"])
+    assert controller_mod._features_device(scene, [0], "cpu", lines.append) == torch.device("cpu")
+
+
 def test_a_resumed_teacher_keeps_the_annealing_weights_it_was_saved_with(tmp_path):
     """A NeRF teacher saved after 1 training step has its high frequencies off; resuming used to switch
     them all on (set_progress(steps)), so the resumed run's pseudo labels came from another field."""

@@ -171,6 +171,18 @@ def test_device_features_are_the_call_s_features_left_where_they_were_computed(n
     assert known_view_features(on_gpu, imgs, memory_bytes=1) == ("on the GPU", imgs)   # not lazy, not on the host
 
 
+def test_features_fit_gpu_at_the_limit():
+    """(known views + 2) full-size views of features within half the GPU's memory: lego's 3 views at 400x400
+    (5 x 614.4 MB = 3.072 GB) need a 6.144 GB GPU; one byte less and they stay on the host."""
+    from senerf.selftrain.features import features_fit_gpu
+
+    need = 5 * 400 * 400 * 960 * 4
+    assert need == 3_072_000_000
+    assert features_fit_gpu((400, 400), 3, 2 * need) and not features_fit_gpu((400, 400), 3, 2 * need - 1)
+    assert features_fit_gpu((400, 400), 3, 2 * 5 * 400 * 400 * 200 * 4, channels=200)
+    assert not features_fit_gpu((400, 400), 4, 2 * need)
+
+
 @pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA GPU")
 def test_vgg_on_cuda_matches_the_cpu(vgg, natural):
     """The convolutions on the GPU, the maps back on the host: the CPU's features within float32 rounding
