@@ -20,13 +20,14 @@ from .controller import (RELIABILITY_KINDS, PseudoLabels, SelfTrainConfig, datas
 from .distill import (DistillationLoss, DistillConfig, PseudoRays, bins_with_fractions, gaussian_kernel,
                       gaussian_prior, neighbour_offsets, prior_weights, unified_prior_weights)
 from .features import (FEATURE_CHANNELS, DaisyFeatures, FeatureExtractor, LazyViewFeatures, VGG19Features,
-                       features_memory_problem, features_on_device, known_view_features, make_feature_extractor)
+                       features_fit_gpu, features_memory_problem, features_on_device, known_view_features,
+                       make_feature_extractor)
 from .reliability import (NO_MATCH, ViewSimilarity, adaptive_threshold, bilinear_sample, cosine_similarity,
                           gt_reliable_mask, mask_quality, resolve_threshold, threshold_weights, view_similarity)
 
 __all__ = [
     "FeatureExtractor", "VGG19Features", "DaisyFeatures", "make_feature_extractor", "LazyViewFeatures",
-    "known_view_features", "features_on_device", "FEATURE_CHANNELS", "features_memory_problem",
+    "known_view_features", "features_on_device", "features_fit_gpu", "FEATURE_CHANNELS", "features_memory_problem",
     "NO_MATCH", "ViewSimilarity", "bilinear_sample", "cosine_similarity", "view_similarity",
     "adaptive_threshold", "resolve_threshold", "threshold_weights", "gt_reliable_mask", "mask_quality",
     "DistillConfig", "gaussian_kernel", "neighbour_offsets", "prior_weights", "unified_prior_weights",

@@ -449,11 +449,12 @@ def _features_device(scene, train_idx, device, echo) -> torch.device:
     device = torch.device(device)
     if device.type != "cuda":
         return device
-    gpu = torch.cuda.get_device_properties(device.index or 0).total_memory
+    index = torch.cuda.current_device() if device.index is None else device.index
+    gpu = torch.cuda.get_device_properties(index).total_memory
     if features_fit_gpu(scene.size, len(train_idx), gpu):
         return device
-    echo(f"selftrain: VGG-19 features of {len(train_idx)} known views at {scene.size[1]}x{scene.size[0]} take more "
-         f"than half of the GPU's {gpu / 2**30:.0f} GiB: computed and looked up on the host")
+    echo(f"selftrain: VGG-19 features of {len(train_idx)} known views at {scene.size[1]}x{scene.size[0]} and their "
+         f"lookups take more than half of the GPU's {gpu / 2**30:.0f} GiB: computed and looked up on the host")
     return torch.device("cpu")
 
 

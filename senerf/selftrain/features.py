@@ -45,6 +45,7 @@ __all__ = [
     "features_on_device",
     "features_fit_gpu",
     "GPU_FEATURES_MEMORY_SHARE",
+    "GPU_LOOKUP_ROWS",
     "EAGER_FEATURES_MEMORY_SHARE",
     "FEATURE_CHANNELS",
     "features_memory_problem",
@@ -409,12 +410,19 @@ def features_memory_problem(name: str, size: tuple, memory_bytes: int | None = N
 GPU_FEATURES_MEMORY_SHARE = 0.5
 
 
+#: Feature rows the torch lookups hold at once on the GPU: about 8 temporaries of a 65,536-pixel chunk
+#: (``senerf.selftrain.reliability``: 4 x its NumPy chunk of 16,384).
+GPU_LOOKUP_ROWS = 8 * 65536
+
+
 def features_fit_gpu(size: tuple, n_views: int, gpu_bytes: int, channels: int = 960) -> bool:
     """Whether ``n_views`` known views' features and a pseudo view's (two copies: its features and their
-    upsampling's temporaries), each ``(H, W, channels)`` float32 for ``size = (H, W)``, fit in
-    :data:`GPU_FEATURES_MEMORY_SHARE` of ``gpu_bytes``.  lego at 400x400, 3 views: 3.1 GB."""
+    upsampling's temporaries), each ``(H, W, channels)`` float32 for ``size = (H, W)``, and the lookups'
+    :data:`GPU_LOOKUP_ROWS` fit in :data:`GPU_FEATURES_MEMORY_SHARE` of ``gpu_bytes``.  lego at 400x400, 3 views:
+    3.1 GB of features and 2.0 GB of lookups, so a GPU of 10.2 GB or more."""
     h, w = size
-    return (int(n_views) + 2) * h * w * int(channels) * 4 <= GPU_FEATURES_MEMORY_SHARE * gpu_bytes
+    rows = (int(n_views) + 2) * h * w + GPU_LOOKUP_ROWS
+    return rows * int(channels) * 4 <= GPU_FEATURES_MEMORY_SHARE * gpu_bytes
 
 
 def features_on_device(extractor) -> bool:

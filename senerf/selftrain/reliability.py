@@ -261,7 +261,10 @@ def view_similarity(pseudo_features: np.ndarray, pseudo_z: np.ndarray, pseudo_op
         if on_torch:
             out_j[idx] = _lookup_similarity_torch(flat_src, idx, known_features[j], uv_j[idx])
         else:
-            features_j = np.asarray(known_features[j], dtype=np.float32)  # (H', W', C), built now when lazy
+            features_j = known_features[j]   # (H', W', C), built now when lazy
+            if hasattr(features_j, "cpu") and not isinstance(features_j, np.ndarray):   # a tensor, on any device
+                features_j = features_j.cpu().numpy()
+            features_j = np.asarray(features_j, dtype=np.float32)
             # in chunks: a (pixels, C) lookup makes ~6 temporaries of that size (4 GiB for a 504x378 view with
             # VGG's 960 channels in one go; a few hundred MiB per chunk)
             for start in range(0, idx.size, _SAMPLE_CHUNK):

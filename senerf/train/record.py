@@ -33,8 +33,8 @@ def host_record(device) -> dict:
     """What a fit's figures depend on beyond its settings: the device (``'cpu'`` or the GPU's name), torch's CPU
     thread count and the torch and NumPy versions.  On the CPU a fit is the same to the bit for the same seed,
     thread count and builds; with another thread count the float sums run in another order (lego Extreme fast
-    seed 0, 25 test views: 16.708767 -> 17.431559 dB with 2 threads, 16.65 -> 17.42 with 1).  On CUDA repeated
-    runs differ (``index_add_`` and ``cumsum`` are not deterministic there)."""
+    seed 0, 25 test views: 16.708767 -> 17.431559 dB with 2 threads, 16.653053 -> 17.420419 with 1; BENCHMARKS.md,
+    session 19).  On CUDA repeated runs differ (``index_add_`` and ``cumsum`` are not deterministic there)."""
     import torch
 
     device = torch.device(device)

@@ -534,6 +534,15 @@ def test_vgg_features_run_on_the_fits_device(tiny_scene, tmp_path, monkeypatch):
                                             tmp_path / features, progress=False, echo=lambda s: None)
     assert seen[0][0] == "vgg19" and seen[0][1]["device"] == torch.device("cpu")
     assert seen[1] == ("daisy", {})
+    # the extractor gets what _features_device chose for the fit's device and known views
+    chosen = []
+    monkeypatch.setattr(controller_mod, "_features_device",
+                        lambda scene, idx, device, echo: (chosen.append((list(idx), str(device))), "sentinel")[1])
+    with pytest.raises(KeyboardInterrupt):
+        controller_mod.run_selftraining(sc, train_idx, test_idx, model, tcfg,
+                                        SelfTrainConfig(iterations=1, n_pseudo_per_input=1, features="vgg19"),
+                                        tmp_path / "chosen", progress=False, echo=lambda s: None)
+    assert chosen == [(list(train_idx), "cpu")] and seen[2][1]["device"] == "sentinel"
 
 
 def test_vgg_features_stay_on_the_host_when_the_gpu_is_too_small(monkeypatch):
@@ -544,15 +553,20 @@ def test_vgg_features_stay_on_the_host_when_the_gpu_is_too_small(monkeypatch):
     import torch
 
     scene = SimpleNamespace(size=(400, 300))
-    need = 5 * 400 * 300 * 960 * 4          # 3 known views + a pseudo view's two copies
+    need = (5 * 400 * 300 + 8 * 65536) * 960 * 4     # 3 known views + a pseudo view's two copies + lookups
+    asked = []
+    monkeypatch.setattr(torch.cuda, "current_device", lambda: 1)
     for total, where in ((2 * need, "cuda"), (2 * need - 1, "cpu")):
-        monkeypatch.setattr(torch.cuda, "get_device_properties", lambda index: SimpleNamespace(total_memory=total))
+        monkeypatch.setattr(torch.cuda, "get_device_properties",
+                            lambda index: (asked.append(index), SimpleNamespace(total_memory=total))[1])
         lines = []
         got = controller_mod._features_device(scene, [0, 1, 51], "cuda", lines.append)
         assert got == torch.device(where)
         assert lines == ([] if where == "cuda" else [
-            f"selftrain: VGG-19 features of 3 known views at 300x400 take more than half of the GPU's "
-            f"{total / 2**30:.0f} GiB: computed and looked up on the host"])
+            f"selftrain: VGG-19 features of 3 known views at 300x400 and their lookups take more than half of the "
+            f"GPU's {total / 2**30:.0f} GiB: computed and looked up on the host"])
+    controller_mod._features_device(scene, [0, 1, 51], "cuda:3", lines.append)
+    assert asked == [1, 1, 3]        # plain "cuda" is torch's current GPU, not always GPU 0
     assert controller_mod._features_device(scene, [0], "cpu", lines.append) == torch.device("cpu")
 
 

@@ -166,27 +166,30 @@ def test_device_features_are_the_call_s_features_left_where_they_were_computed(n
     assert isinstance(got, torch.Tensor) and got.device.type == "cpu" and got.dtype == torch.float32
     assert np.array_equal(got.numpy(), ext(imgs))
     assert not features_on_device(ext) and not features_on_device(DaisyFeatures())
+    with pytest.raises(ValueError, match="8x8"):
+        ext.device_features(np.zeros((1, 4, 4, 3), np.float32))
     on_gpu = SimpleNamespace(device=torch.device("cuda"), device_features=lambda images: ("on the GPU", images))
     assert features_on_device(on_gpu) and not features_on_device(SimpleNamespace(device="cuda"))
     assert known_view_features(on_gpu, imgs, memory_bytes=1) == ("on the GPU", imgs)   # not lazy, not on the host
 
 
 def test_features_fit_gpu_at_the_limit():
-    """(known views + 2) full-size views of features within half the GPU's memory: lego's 3 views at 400x400
-    (5 x 614.4 MB = 3.072 GB) need a 6.144 GB GPU; one byte less and they stay on the host."""
+    """(known views + 2) full-size views of features and the lookups' 524,288 rows within half the GPU's memory:
+    lego's 3 views at 400x400 (5 x 614.4 MB = 3.072 GB, and 2.013 GB of lookups) need a 10.17 GB GPU; one byte
+    less and they stay on the host."""
     from senerf.selftrain.features import features_fit_gpu
 
-    need = 5 * 400 * 400 * 960 * 4
-    assert need == 3_072_000_000
+    need = 5 * 400 * 400 * 960 * 4 + 524_288 * 960 * 4
+    assert need == 3_072_000_000 + 2_013_265_920
     assert features_fit_gpu((400, 400), 3, 2 * need) and not features_fit_gpu((400, 400), 3, 2 * need - 1)
-    assert features_fit_gpu((400, 400), 3, 2 * 5 * 400 * 400 * 200 * 4, channels=200)
+    assert features_fit_gpu((400, 400), 3, 2 * (5 * 400 * 400 + 524_288) * 200 * 4, channels=200)
     assert not features_fit_gpu((400, 400), 4, 2 * need)
 
 
 @pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA GPU")
 def test_vgg_on_cuda_matches_the_cpu(vgg, natural):
-    """The convolutions on the GPU, the maps back on the host: the CPU's features within float32 rounding
-    (cuDNN's TF32 would be ~1e-3; torch keeps convolutions in full float32 unless told otherwise)."""
+    """The convolutions on the GPU, the maps back on the host: the CPU's features to 2e-3 (cuDNN convolutions
+    run in TF32 by default, ``torch.backends.cudnn.allow_tf32``, about 1e-3 off full float32)."""
     gpu = VGG19Features(device="cuda")
     img = np.stack([natural, natural[::-1]])[:, :64, :72]
     assert all(w.is_cuda for w in gpu.layer_weights("block3_conv1"))

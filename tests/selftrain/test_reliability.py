@@ -335,16 +335,19 @@ def _devices():
 
 @pytest.mark.parametrize("device", _devices())
 @pytest.mark.parametrize("known_as", ["array", "tensor", "lazy"])
-def test_tensor_features_are_looked_up_in_torch_with_the_same_result(monkeypatch, device, known_as):
+@pytest.mark.parametrize("pseudo_scale", [1.0, -1e-3])
+def test_tensor_features_are_looked_up_in_torch_with_the_same_result(monkeypatch, device, known_as, pseudo_scale):
     """Features handed over as tensors (a CUDA fit keeps VGG's features on the GPU) are looked up in torch on
     their device: the NumPy path's valid views and NO_MATCH pixels exactly, its similarities within float32
-    rounding, across lookup chunks, with a partly dropped background and a NaN known view not counted."""
+    rounding, across lookup chunks, with a partly dropped background and a NaN known view not counted; also
+    for pseudo features scaled by -1e-3 (negative cosines, small norms)."""
     import torch
 
     import senerf.selftrain.reliability as rel
     from senerf.selftrain.features import LazyViewFeatures
 
     kf, kz, kc, pf, pz, opacity = _two_known_views_and_a_pseudo_view()
+    pf = (pf * pseudo_scale).astype(np.float32)
     opacity = opacity.copy()
     opacity[:, :15] = 0.2
     kf = kf.copy()
@@ -353,14 +356,33 @@ def test_tensor_features_are_looked_up_in_torch_with_the_same_result(monkeypatch
     expect = view_similarity(pf, pz, opacity, K, camera(0.05), kf, kz, K, kc, foreground_only=True)
     known = {"array": kf, "tensor": torch.from_numpy(kf).to(device),
              "lazy": LazyViewFeatures(lambda j: kf[j].copy(), kf.shape)}[known_as]
+
+    def numpy_path(*args):
+        raise AssertionError("the NumPy lookup ran for tensor features")
+
+    monkeypatch.setattr(rel, "cosine_similarity", numpy_path)
     got = view_similarity(torch.from_numpy(pf).to(device), pz, opacity, K, camera(0.05), known, kz, K, kc,
                           foreground_only=True)
     assert isinstance(got.similarity, np.ndarray) and got.similarity.dtype == np.float32
     assert expect.valid.sum() > 4 * 5 * 3 and (expect.per_view == NO_MATCH).any()
+    assert (expect.per_view[expect.valid] < 0).any() == (pseudo_scale < 0)
     np.testing.assert_array_equal(got.valid, expect.valid)
     np.testing.assert_array_equal(got.per_view == NO_MATCH, expect.per_view == NO_MATCH)
     np.testing.assert_allclose(got.per_view, expect.per_view, rtol=0, atol=2e-6)
     np.testing.assert_allclose(got.similarity, expect.similarity, rtol=0, atol=2e-6)
+
+
+@pytest.mark.parametrize("device", _devices())
+def test_array_pseudo_features_with_tensor_known_features_take_the_numpy_path(device):
+    """Known features as a tensor (a GPU extractor's) beside array pseudo features: the NumPy path, after
+    copying each known view to the host, to the bit (``np.asarray`` of a CUDA tensor raised before)."""
+    import torch
+
+    kf, kz, kc, pf, pz, opacity = _two_known_views_and_a_pseudo_view()
+    expect = view_similarity(pf, pz, opacity, K, camera(0.05), kf, kz, K, kc)
+    got = view_similarity(pf, pz, opacity, K, camera(0.05), torch.from_numpy(kf).to(device), kz, K, kc)
+    np.testing.assert_array_equal(got.per_view, expect.per_view)
+    np.testing.assert_array_equal(got.valid, expect.valid)
 
 
 def test_a_zero_feature_vector_has_similarity_zero_in_torch_too():

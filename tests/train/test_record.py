@@ -45,3 +45,4 @@ def test_each_row_records_the_host_that_finished_it(monkeypatch):
     # a GPU is named, not just "cuda" (no GPU needed to check: torch is asked for the name)
     monkeypatch.setattr(torch.cuda, "get_device_name", lambda device=None: f"Fake GPU {torch.device(device)}")
     assert host_record("cuda:1")["device"] == "Fake GPU cuda:1"
+    assert iteration_row(1, ev, None, 1.0, "cuda:1")["host"]["device"] == "Fake GPU cuda:1"
