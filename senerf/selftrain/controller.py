@@ -301,6 +301,8 @@ def estimate_reliability(teacher, occupancy, model, scene, train_idx, pseudo_c2w
         if progress:
             bar.set_postfix_str("")
             bar.unpause()
+    # on a GPU the features stay there and view_similarity looks them up with torch
+    extract = extractor.device_features if features_on_device(extractor) else extractor
     for i in bar:
         t0 = time.perf_counter()
         if renders is None:
@@ -308,8 +310,6 @@ def estimate_reliability(teacher, occupancy, model, scene, train_idx, pseudo_c2w
                                                            occupancy=occupancy, device=device).items()}
         else:
             view = {name: renders[1][name][i] for name in ("rgb", "z_depth", "acc")}
-        # on a GPU the features stay there and view_similarity looks them up with torch
-        extract = extractor.device_features if features_on_device(extractor) else extractor
         feats = extract(np.clip(view["rgb"][None], 0.0, 1.0))[0]
         res = view_similarity(feats, view["z_depth"], view["acc"], pseudo_k[i], pseudo_c2w[i],
                               known_features, known_z, known_intr, known_c2w,
