@@ -102,6 +102,7 @@ def test_tiny_end_to_end_with_resume(tiny_scene, tmp_path, monkeypatch):
     # resumed after the finished baseline: one student trained, with the distillation hook
     assert len(calls) == 1 and calls[0] is not None
     assert any("resuming after iteration 0" in s for s in lines)
+    assert not any("bit for bit" in s for s in lines)          # the same host: nothing to say
     # the labelling is announced before its seconds of renders, features and warps, then summed up
     said = [s for s in lines if s.startswith("selftrain: iteration 1: ")]
     assert said[0] == ("selftrain: iteration 1: labelling 3 pseudo views (teacher renders, vgg19 features, "
@@ -568,6 +569,40 @@ def test_vgg_features_stay_on_the_host_when_the_gpu_is_too_small(monkeypatch):
     controller_mod._features_device(scene, [0, 1, 51], "cuda:3", lines.append)
     assert asked == [1, 1, 3]        # plain "cuda" is torch's current GPU, not always GPU 0
     assert controller_mod._features_device(scene, [0], "cpu", lines.append) == torch.device("cpu")
+
+
+def test_a_resume_on_another_host_says_how_it_differs(tiny_scene, tmp_path, monkeypatch):
+    """CPU figures depend on the thread count and the torch build: a resume on a host other than the one that
+    finished the last iteration says so, in one line naming what differs."""
+    from senerf.train import TrainConfig, choose_model, host_record
+
+    scene = tiny_scene
+    train_idx, test_idx = scene.splits["train"][:3], scene.splits["test"]
+    model = choose_model(scene, train_idx, {"n_samples": 8, "resolution": 16, "occupancy_resolution": 8},
+                         echo=lambda s: None)
+    tcfg = TrainConfig(steps=2, batch_rays=32, warmup_steps=1, checkpoint_every=0, occupancy_warmup=4,
+                       occupancy_every=4)
+    out = tmp_path / "run"
+    cfg = SelfTrainConfig(iterations=0, n_pseudo_per_input=1, features="daisy")
+    controller_mod.run_selftraining(scene, train_idx, test_idx, model, tcfg, cfg, out, progress=False,
+                                    echo=lambda s: None)
+    here = host_record("cpu")
+    monkeypatch.setattr(controller_mod, "host_record", lambda device: dict(here, threads=here["threads"] + 14,
+                                                                          torch="9.9"))
+
+    def stop(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(controller_mod, "estimate_reliability", stop)
+    lines = []
+    with pytest.raises(KeyboardInterrupt):
+        controller_mod.run_selftraining(scene, train_idx, test_idx, model, tcfg, dataclasses.replace(cfg, iterations=1),
+                                        out, progress=False, echo=lines.append)
+    assert (f"selftrain: iteration 0 ran with {here['threads']} threads, with torch {here['torch']}, this call with "
+            f"{here['threads'] + 14} threads, with torch 9.9: the rest is reproducible, but not bit for bit an "
+            f"uninterrupted run") in lines
+    assert controller_mod._host_change(None, here) == "" and controller_mod._host_change(here, here) == ""
+    assert controller_mod._host_change(dict(here, device="NVIDIA H100"), here) == "on NVIDIA H100, this call on cpu"
 
 
 def test_a_resumed_teacher_keeps_the_annealing_weights_it_was_saved_with(tmp_path):
