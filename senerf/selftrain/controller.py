@@ -448,12 +448,13 @@ def _host_change(before: dict | None, now: dict) -> str:
     before session 19) differs from this call's, in words ("with 16 threads, this call with 2"), or ``''``."""
     if not isinstance(before, dict):
         return ""
-    words = {"device": "on {}", "threads": "with {} threads", "torch": "with torch {}", "numpy": "with NumPy {}"}
+    words = {"device": "on {}", "threads": "with {} thread{}", "torch": "with torch {}", "numpy": "with NumPy {}"}
     keys = [k for k in words if k in before and before[k] != now[k]]
-    if not keys:
-        return ""
-    return (", ".join(words[k].format(before[k]) for k in keys) + ", this call "
-            + ", ".join(words[k].format(now[k]) for k in keys))
+
+    def said(host: dict) -> str:
+        return ", ".join(words[k].format(host[k], "" if host[k] == 1 else "s") for k in keys)
+
+    return f"{said(before)}, this call {said(now)}" if keys else ""
 
 
 def _features_device(scene, train_idx, device, echo) -> torch.device:
