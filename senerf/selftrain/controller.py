@@ -445,7 +445,8 @@ def oracle_reliability(teacher, occupancy, model, scene, pseudo_idx, cfg: SelfTr
 
 def _host_change(before: dict | None, now: dict) -> str:
     """How the host of a run's last finished iteration (its ``metrics.json`` row's ``host``; None in rows made
-    before session 19) differs from this call's, in words ("with 16 threads, this call with 2"), or ``''``."""
+    before session 19) differs from this call's, in words ("with 16 threads, this call with 2 threads"), or
+    ``''``."""
     if not isinstance(before, dict):
         return ""
     words = {"device": "on {}", "threads": "with {} thread{}", "torch": "with torch {}", "numpy": "with NumPy {}"}

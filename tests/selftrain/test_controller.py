@@ -598,7 +598,8 @@ def test_a_resume_on_another_host_says_how_it_differs(tiny_scene, tmp_path, monk
     with pytest.raises(KeyboardInterrupt):
         controller_mod.run_selftraining(scene, train_idx, test_idx, model, tcfg, dataclasses.replace(cfg, iterations=1),
                                         out, progress=False, echo=lines.append)
-    assert (f"selftrain: iteration 0 ran with {here['threads']} threads, with torch {here['torch']}, this call with "
+    threads = f"{here['threads']} thread" + ("" if here["threads"] == 1 else "s")
+    assert (f"selftrain: iteration 0 ran with {threads}, with torch {here['torch']}, this call with "
             f"{here['threads'] + 14} threads, with torch 9.9: the rest is reproducible, but not bit for bit an "
             f"uninterrupted run") in lines
     assert controller_mod._host_change(None, here) == "" and controller_mod._host_change(here, here) == ""
