@@ -508,12 +508,23 @@ def test_pseudo_views_keep_their_source_views_intrinsics(tiny_scene, tmp_path, m
     assert seen["pseudo_intrinsics"] == tuple(kk) * 2
 
 
+def _two_step_fit(scene):
+    """(train_idx (first 3 training views), test_idx, model, TrainConfig) of a 2-step fit of ``scene`` at 16^2
+    planes and 8 samples: enough to reach the labelling."""
+    from senerf.train import TrainConfig, choose_model
+
+    train_idx, test_idx = scene.splits["train"][:3], scene.splits["test"]
+    model = choose_model(scene, train_idx, {"n_samples": 8, "resolution": 16, "occupancy_resolution": 8},
+                         echo=lambda s: None)
+    tcfg = TrainConfig(steps=2, batch_rays=32, warmup_steps=1, checkpoint_every=0, occupancy_warmup=4,
+                       occupancy_every=4)
+    return train_idx, test_idx, model, tcfg
+
+
 def test_vgg_features_run_on_the_fits_device(tiny_scene, tmp_path, monkeypatch):
     """The controller builds VGG-19's extractor on the fit's device (its convolutions ran on the host even in
     a ``--device cuda`` fit before, at 06ed992); DAISY (OpenCV, host only) gets no device."""
     import torch
-
-    from senerf.train import TrainConfig, choose_model
 
     seen = []
 
@@ -523,11 +534,7 @@ def test_vgg_features_run_on_the_fits_device(tiny_scene, tmp_path, monkeypatch):
 
     monkeypatch.setattr(controller_mod, "make_feature_extractor", spy)
     sc = tiny_scene
-    train_idx, test_idx = sc.splits["train"][:3], sc.splits["test"]
-    model = choose_model(sc, train_idx, {"n_samples": 8, "resolution": 16, "occupancy_resolution": 8},
-                         echo=lambda s: None)
-    tcfg = TrainConfig(steps=2, batch_rays=32, warmup_steps=1, checkpoint_every=0, occupancy_warmup=4,
-                       occupancy_every=4)
+    train_idx, test_idx, model, tcfg = _two_step_fit(sc)
     for features in ("vgg19", "daisy"):
         with pytest.raises(KeyboardInterrupt):
             controller_mod.run_selftraining(sc, train_idx, test_idx, model, tcfg,
@@ -574,14 +581,10 @@ def test_vgg_features_stay_on_the_host_when_the_gpu_is_too_small(monkeypatch):
 def test_a_resume_on_another_host_says_how_it_differs(tiny_scene, tmp_path, monkeypatch):
     """CPU figures depend on the thread count and the torch build: a resume on a host other than the one that
     finished the last iteration says so, in one line naming what differs."""
-    from senerf.train import TrainConfig, choose_model, host_record
+    from senerf.train import host_record
 
     scene = tiny_scene
-    train_idx, test_idx = scene.splits["train"][:3], scene.splits["test"]
-    model = choose_model(scene, train_idx, {"n_samples": 8, "resolution": 16, "occupancy_resolution": 8},
-                         echo=lambda s: None)
-    tcfg = TrainConfig(steps=2, batch_rays=32, warmup_steps=1, checkpoint_every=0, occupancy_warmup=4,
-                       occupancy_every=4)
+    train_idx, test_idx, model, tcfg = _two_step_fit(scene)
     out = tmp_path / "run"
     cfg = SelfTrainConfig(iterations=0, n_pseudo_per_input=1, features="daisy")
     controller_mod.run_selftraining(scene, train_idx, test_idx, model, tcfg, cfg, out, progress=False,
