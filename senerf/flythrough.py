@@ -717,12 +717,12 @@ def _run(args, argv: list[str]) -> int:
         if read_back:
             print(f"{PROG}: ({read_back} frame{'s' if read_back > 1 else ''} read back, not rendered again)")
         path_record = dict(senerf_render=__version__, command=argv, run=str(run.folder.resolve()),
-                      iteration=run.iteration, compared_with=0 if compare is not None else None, path=path,
-                      fps=args.fps,
-                      convention="OpenCV camera-to-world (x right, y down, z forward), the "
-                      "scene's world frame; intrinsics fx, fy, cx, cy, width, height (pixel centres at i + 0.5)",
-                      intrinsics=[[k.fx, k.fy, k.cx, k.cy, k.width, k.height] for k in intrinsics],
-                      c2w=c2w.tolist())
+                           iteration=run.iteration, compared_with=0 if compare is not None else None, path=path,
+                           fps=args.fps,
+                           convention="OpenCV camera-to-world (x right, y down, z forward), the scene's world "
+                           "frame; intrinsics fx, fy, cx, cy, width, height (pixel centres at i + 0.5)",
+                           intrinsics=[[k.fx, k.fy, k.cx, k.cy, k.width, k.height] for k in intrinsics],
+                           c2w=c2w.tolist())
         try:
             written = write_frames(out, frames, path_record, args.fps, args.overwrite, compare=compare)
         except InputError as exc:   # a full disk, say: the frames stay for the rerun
