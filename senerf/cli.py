@@ -27,7 +27,8 @@ import time
 from pathlib import Path
 
 from senerf import __version__
-from senerf.cliargs import SEED_MAX, OneLineParser, argument_type, check_device, float_flag, int_flag, run_command
+from senerf.cliargs import (SEED_MAX, THREADS_HELP, OneLineParser, argument_type, check_device, float_flag, int_flag,
+                            run_command, set_threads, threads_flag)
 from senerf.errors import InputError
 from senerf.memory import physical_memory_bytes
 
@@ -87,6 +88,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="self-training iterations after the baseline (0 = baseline only; default: the "
                         "preset's: 3 for balanced, 1 for fast)")
     t.add_argument("--device", default="cpu", help="cpu, cuda or cuda:N")
+    t.add_argument("--threads", type=threads_flag(), default=None, metavar="N", help=THREADS_HELP)
     t.add_argument("--seed", type=int_flag("--seed", allow_zero=True, maximum=SEED_MAX), default=0)
     m = p.add_argument_group("model overrides (default: chosen from the scene and printed)")
     m.add_argument("--field", choices=("kplanes", "nerf"),
@@ -434,6 +436,7 @@ def _check_field_flags(args) -> None:
 def _run(args, argv) -> int:
     device = check_device(args.device)   # before the demo writes its scene
     _check_field_flags(args)
+    set_threads(args.threads)
     if args.demo:
         try:
             from senerf.demo import run_demo

@@ -16,7 +16,8 @@ import warnings
 
 from senerf.errors import InputError
 
-__all__ = ["OneLineParser", "argument_type", "int_flag", "float_flag", "check_device", "run_command", "SEED_MAX"]
+__all__ = ["OneLineParser", "argument_type", "int_flag", "float_flag", "check_device", "threads_flag", "set_threads",
+           "run_command", "SEED_MAX", "THREADS_MAX", "THREADS_HELP"]
 
 #: Largest seed either command accepts (torch generators take a signed 64-bit seed).
 SEED_MAX = 2**63 - 1
@@ -92,6 +93,34 @@ def check_device(device: str, flag: str = "--device") -> str:
         raise InputError(f"{device} requested but torch sees {torch.cuda.device_count()} GPU(s) "
                          f"(cuda:0 ... cuda:{torch.cuda.device_count() - 1})", field=flag)
     return device
+
+
+#: The most CPU threads ``--threads`` accepts (far above any machine's cores; a typo like 20000 is refused).
+THREADS_MAX = 1024
+
+THREADS_HELP = ("torch's CPU threads (default: torch's, usually one per core). A CPU fit repeats to the bit "
+                "for the same seed, thread count and torch build only; give the count a run was made with "
+                "(metrics.json's host.threads) to repeat it on another machine")
+
+
+def threads_flag(flag: str = "--threads"):
+    """The ``--threads`` argument type: an integer in ``[1, THREADS_MAX]``."""
+    return int_flag(flag, maximum=THREADS_MAX)
+
+
+def set_threads(threads: int | None) -> None:
+    """``torch.set_num_threads(threads)`` unless ``threads`` is None (torch keeps its default).
+
+    The count sets how torch's CPU kernels, and senerf's compiled K-Planes kernel (which splits its points over
+    ``torch.get_num_threads()`` workers), divide their sums, so it decides a CPU fit's figures to the last bit
+    (BENCHMARKS.md, session 19); the same command with ``--threads N`` repeats them on any machine with the same
+    torch build.  Importing torch is left to this call's first use, as with :func:`check_device`.
+    """
+    if threads is None:
+        return
+    import torch
+
+    torch.set_num_threads(int(threads))
 
 
 #: OSError numbers that say a path the user gave cannot be used as it is (permissions, a name too long, a loop

@@ -24,7 +24,7 @@ __all__ = ["DEMO_PRESET", "DEMO_OPTIONS", "demo_iterations", "ensure_demo_scene"
 
 DEMO_PRESET = "fast"
 #: ``senerf-fit`` options the demo uses; any other one given with ``--demo`` is refused, not ignored.
-DEMO_OPTIONS = frozenset({"demo", "out", "seed", "device", "quiet", "overwrite", "steps", "batch_rays"})
+DEMO_OPTIONS = frozenset({"demo", "out", "seed", "device", "threads", "quiet", "overwrite", "steps", "batch_rays"})
 #: What the demo writes into its folder.
 _DEMO_ENTRIES = frozenset({"demo_scene", "fit"})
 
@@ -117,7 +117,7 @@ def _check_fit_seed(out: Path, seed: int, overwrite: bool) -> None:
 def run_demo(args, argv: list[str] | None = None) -> int:
     """Run the demo for parsed ``senerf-fit`` arguments (``argv``: the arguments they were parsed from).
 
-    Uses ``--out``, ``--seed``, ``--device``, ``--quiet``, ``--overwrite``, and ``--steps`` /
+    Uses ``--out``, ``--seed``, ``--device``, ``--threads``, ``--quiet``, ``--overwrite``, and ``--steps`` /
     ``--batch-rays`` when given (they override the preset); everything else is the demo's own.
     """
     from senerf.cli import main
@@ -132,8 +132,8 @@ def run_demo(args, argv: list[str] | None = None) -> int:
     argv = [str(scene_dir), "--views", ",".join(map(str, DEMO_FEWSHOT_VIEWS)), "--preset", DEMO_PRESET,
             "--iterations", str(demo_iterations()), "--seed", str(args.seed), "--device", args.device,
             "--out", str(fit_out)]
-    for flag, value in (("--steps", args.steps), ("--batch-rays", args.batch_rays)):
-        if value is not None:  # explicit overrides of the preset (e.g. a quick smoke run)
+    for flag, value in (("--steps", args.steps), ("--batch-rays", args.batch_rays), ("--threads", args.threads)):
+        if value is not None:  # overrides of the preset (e.g. a quick smoke run), and the thread count
             argv += [flag, str(value)]
     if args.overwrite:
         argv.append("--overwrite")

@@ -38,7 +38,8 @@ from pathlib import Path
 import numpy as np
 
 from senerf import __version__
-from senerf.cliargs import OneLineParser, check_device, float_flag, int_flag, run_command
+from senerf.cliargs import (THREADS_HELP, OneLineParser, check_device, float_flag, int_flag, run_command, set_threads,
+                            threads_flag)
 from senerf.errors import InputError
 from senerf.memory import physical_memory_bytes
 
@@ -669,6 +670,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", type=Path, help="output folder (default RUN/render/<path>_iter<K>)")
     p.add_argument("--overwrite", action="store_true", help="replace an earlier senerf-render output in --out")
     p.add_argument("--device", default="cpu", help="cpu, cuda or cuda:N")
+    p.add_argument("--threads", type=threads_flag(), default=None, metavar="N", help=THREADS_HELP)
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
     return p
@@ -676,6 +678,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 def _run(args, argv: list[str]) -> int:
     device = check_device(args.device)
+    set_threads(args.threads)
     if args.elevation is not None and args.path not in (None, "orbit"):
         raise InputError("applies to --path orbit only", field="--elevation")
     if args.out is not None:

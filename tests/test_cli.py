@@ -53,6 +53,8 @@ def test_parse_views():
     (["--downscale", "0.5"], "argument --downscale: expected a finite number >= 1, got '0.5'"),
     (["--aabb", "0"], "argument --aabb: expected a finite number > 0, got '0'"),
     (["--device", "tpu"], "--device"),
+    (["--threads", "0"], "argument --threads: must be >= 1 and <= 1024, got 0"),
+    (["--threads", "1025"], "argument --threads: must be >= 1 and <= 1024, got 1025"),
     (["--protocol", "llff", "--views", "0"], "--views"),
 ])
 def test_bad_input_exits_2_with_one_line_and_writes_nothing(tiny_scene, tmp_path, capsys, extra, needle):
@@ -133,6 +135,26 @@ def test_tiny_end_to_end_fit_resume_and_overwrite(tiny_scene, tmp_path, capsys):
     assert (f"senerf-fit: --overwrite: removed the earlier run's checkpoints/, metrics.json, summary.png, run.json, "
             f"iter_0/ from {out}\n") in capsys.readouterr().out
     assert json.loads((out / "metrics.json").read_text())["config"]["train"]["seed"] == 1
+
+
+def test_threads_sets_torchs_thread_count_and_is_not_part_of_the_run(tiny_scene, tmp_path, capsys):
+    """--threads N is torch.set_num_threads(N) before any work: the row's host records it, and the same run
+    made with another count (or torch's default) is the same run (a resume, not a refusal)."""
+    import torch
+
+    before = torch.get_num_threads()
+    out = tmp_path / "run"
+    try:
+        torch.set_num_threads(2)
+        assert main([str(tiny_scene), "--out", str(out), *TINY, "--threads", "1"]) == 0
+        assert torch.get_num_threads() == 1
+        (row,) = json.loads((out / "metrics.json").read_text())["iterations"]
+        assert row["host"]["threads"] == 1
+        torch.set_num_threads(2)
+        assert main([str(tiny_scene), "--out", str(out), *TINY]) == 0
+        assert "iteration 0 is already done" in capsys.readouterr().out
+    finally:
+        torch.set_num_threads(before)
 
 
 def test_a_scene_whose_files_changed_is_not_resumed(tiny_scene, tmp_path, capsys):

@@ -164,3 +164,24 @@ def test_run_command_reports_a_path_the_user_may_not_read_in_one_line(capsys, tm
     assert "Traceback" in capsys.readouterr().err
     assert run_command("prog", raising(PermissionError(errno.EACCES, "Permission denied")), "x") == 1   # no path
     capsys.readouterr()
+
+
+def test_set_threads_sets_torchs_count_and_none_leaves_it():
+    import torch
+
+    from senerf.cliargs import THREADS_MAX, set_threads, threads_flag
+
+    before = torch.get_num_threads()
+    try:
+        set_threads(1)
+        assert torch.get_num_threads() == 1
+        set_threads(None)
+        assert torch.get_num_threads() == 1
+        set_threads(2)
+        assert torch.get_num_threads() == 2
+    finally:
+        torch.set_num_threads(before)
+    assert _parse(threads_flag(), "1") == 1 and _parse(threads_flag(), str(THREADS_MAX)) == THREADS_MAX
+    for bad in ("0", str(THREADS_MAX + 1), "two"):
+        with pytest.raises(InputError, match=r"argument --x: (must be >= 1 and <= 1024|expected an integer)"):
+            _parse(threads_flag(), bad)

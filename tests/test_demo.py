@@ -134,7 +134,7 @@ def test_overwrite_puts_the_demo_beside_a_users_files(tmp_path):
 
 def test_demo_hands_its_own_choices_and_the_users_to_the_fit(tmp_path, monkeypatch, capsys):
     """run_demo's call of senerf-fit (stubbed here: it records its arguments and writes a metrics.json):
-    the demo's scene, views and preset; the user's seed, overwrite, quiet, steps and batch rays; the
+    the demo's scene, views and preset; the user's seed, overwrite, quiet, steps, batch rays and threads; the
     default --out runs/demo; then both PSNRs of the metrics and their difference."""
     import senerf.cli
     from senerf.demo import run_demo
@@ -150,14 +150,14 @@ def test_demo_hands_its_own_choices_and_the_users_to_the_fit(tmp_path, monkeypat
 
     monkeypatch.setattr(senerf.cli, "main", fit)
     monkeypatch.chdir(tmp_path)
-    argv = ["--demo", "--seed", "7", "--overwrite", "--quiet", "--steps", "30"]
+    argv = ["--demo", "--seed", "7", "--overwrite", "--quiet", "--steps", "30", "--threads", "1"]
     status = 0
     assert run_demo(senerf.cli.build_parser().parse_args(argv), argv) == 0
     demo = tmp_path.resolve() / "runs" / "demo"
     (got,) = calls
     assert (Path(got.scene).resolve(), got.out.resolve()) == (demo / "demo_scene", demo / "fit")
     assert (got.views, got.preset) == (list(DEMO_FEWSHOT_VIEWS), "fast")
-    assert (got.seed, got.overwrite, got.quiet, got.steps, got.batch_rays) == (7, True, True, 30, None)
+    assert (got.seed, got.overwrite, got.quiet, got.steps, got.batch_rays, got.threads) == (7, True, True, 30, None, 1)
     assert _scene_seed(demo / "demo_scene") == 7
     text = capsys.readouterr().out
     assert ("baseline (iteration 0) test PSNR 20.00 dB; SE-NeRF (iteration 2) test PSNR 23.25 dB (+3.25 dB); 12 s"
@@ -165,7 +165,8 @@ def test_demo_hands_its_own_choices_and_the_users_to_the_fit(tmp_path, monkeypat
     status = 1  # a failed fit: its status, and no PSNR line
     argv = ["--demo", "--seed", "7", "--batch-rays", "64"]
     assert run_demo(senerf.cli.build_parser().parse_args(argv), argv) == 1
-    assert (calls[-1].overwrite, calls[-1].quiet, calls[-1].steps, calls[-1].batch_rays) == (False, False, None, 64)
+    assert (calls[-1].overwrite, calls[-1].quiet, calls[-1].steps, calls[-1].batch_rays, calls[-1].threads) == (
+        False, False, None, 64, None)
     assert "PSNR" not in capsys.readouterr().out
 
 

@@ -59,7 +59,15 @@ def test_default_orbit_writes_frames_gifs_and_the_poses(runs, capsys):
     from senerf.data import load_scene
     from senerf.geometry import orbit_path
 
-    assert main([str(runs.st), "--frames", "6", "--fps", "10", "--quiet"]) == 0
+    import torch
+
+    before = torch.get_num_threads()
+    try:
+        torch.set_num_threads(2)
+        assert main([str(runs.st), "--frames", "6", "--fps", "10", "--quiet", "--threads", "1"]) == 0
+        assert torch.get_num_threads() == 1                 # --threads is torch.set_num_threads
+    finally:
+        torch.set_num_threads(before)
     out = runs.st / "render" / "orbit_iter1"          # the last finished iteration, the object default
     assert f"in {out}" in capsys.readouterr().out
     record = json.loads((out / "path.json").read_text())
@@ -146,6 +154,7 @@ def test_spiral_uses_the_scenes_bounds(runs):
     (["--path", "test", "--frames", "5"], "--frames: the test path has one frame per test view"),
     (["--frames", "10000", "--scale", "64"], "--frames: 10000 frames at 1024x1024 need about"),
     (["--device", "tpu"], "--device"),
+    (["--threads", "0"], "argument --threads: must be >= 1 and <= 1024, got 0"),
 ])
 def test_bad_flags_are_one_line_and_write_nothing(runs, tmp_path, capsys, flags, needle):
     out = tmp_path / "o"
@@ -488,9 +497,10 @@ def test_flag_defaults_and_bounds():
 
     args = build_parser().parse_args(["run"])
     assert args.fps == 20.0 and args.frames is None and args.scale == 1.0 and args.path is None
-    for ok in ("--elevation=-89", "--elevation=89", "--frames=10000"):
+    assert args.threads is None
+    for ok in ("--elevation=-89", "--elevation=89", "--frames=10000", "--threads=1", "--threads=1024"):
         build_parser().parse_args(["run", ok])
-    for bad in ("--elevation=-89.5", "--frames=10001"):
+    for bad in ("--elevation=-89.5", "--frames=10001", "--threads=1025"):
         with pytest.raises(InputError):
             build_parser().parse_args(["run", bad])
 

@@ -49,9 +49,9 @@ from .. import geometry
 from ..data import changed_files, run_file_digests
 from ..errors import InputError
 from ..train import (atomic_write_text, build_field, camera_rays, config_to_dict, differences_text, eval_images,
-                     evaluate, finished_metrics, host_record, iteration_row, load_checkpoint, load_state_keeping_box,
-                     make_occupancy, metrics_document, render_views, save_checkpoint, settings_differences,
-                     train_field, write_png)
+                     evaluate, finished_metrics, host_change, host_record, iteration_row, load_checkpoint,
+                     load_state_keeping_box, make_occupancy, metrics_document, render_views, save_checkpoint,
+                     settings_differences, train_field, write_png)
 from .distill import DistillationLoss, DistillConfig, PseudoRays, prior_weights, unified_prior_weights
 from .features import (FEATURE_NAMES, features_fit_gpu, features_memory_problem, features_on_device,
                        known_view_features, make_feature_extractor)
@@ -443,21 +443,6 @@ def oracle_reliability(teacher, occupancy, model, scene, pseudo_idx, cfg: SelfTr
                         prior=prior, neighbour=neighbour, empty=empty, intrinsics=intr)
 
 
-def _host_change(before: dict | None, now: dict) -> str:
-    """How the host of a run's last finished iteration (its ``metrics.json`` row's ``host``; None in rows made
-    before session 19) differs from this call's, in words ("with 16 threads, this call with 2 threads"), or
-    ``''``."""
-    if not isinstance(before, dict):
-        return ""
-    words = {"device": "on {}", "threads": "with {} thread{}", "torch": "with torch {}", "numpy": "with NumPy {}"}
-    keys = [k for k in words if k in before and before[k] != now[k]]
-
-    def said(host: dict) -> str:
-        return ", ".join(words[k].format(host[k], "" if host[k] == 1 else "s") for k in keys)
-
-    return f"{said(before)}, this call {said(now)}" if keys else ""
-
-
 def _features_device(scene, train_idx, device, echo) -> torch.device:
     """Where VGG-19 runs and labelling keeps its features: the fit's device, unless that is a GPU too small for
     the known views' and a pseudo view's features (:func:`~senerf.selftrain.features.features_fit_gpu`): then
@@ -745,7 +730,7 @@ def run_selftraining(scene, train_idx, test_idx, model, train_cfg, cfg: SelfTrai
                 return stored
         else:
             echo(f"selftrain: resuming after iteration {done} from {teacher_path}")
-            moved = _host_change(metrics["iterations"][-1].get("host"), host_record(device))
+            moved = host_change(metrics["iterations"][-1].get("host"), host_record(device))
             if moved:
                 echo(f"selftrain: iteration {done} ran {moved}: the rest is reproducible, but not bit for bit "
                      f"an uninterrupted run")

@@ -15,7 +15,7 @@ from .config import (NERF_FREQS, NERF_HIDDEN, NERF_LAYERS, PRESETS, ModelConfig,
 from .evaluate import depth_to_color, eval_images, evaluate, render_views, write_png
 from .loop import TrainResult, background_color, load_state_keeping_box, lr_factor, make_occupancy, train_field
 from .metrics import LPIPS_UNAVAILABLE, mse, psnr, ssim
-from .record import finished_metrics, host_record, iteration_row, metrics_document
+from .record import finished_metrics, host_change, host_record, iteration_row, metrics_document
 from .rays import RayBatchSource, camera_rays, per_view_intrinsics, ray_aabb_bounds, ray_dist_to_z_depth
 
 __all__ = [
@@ -28,5 +28,5 @@ __all__ = [
     "evaluate", "eval_images", "render_views", "depth_to_color", "write_png",
     "psnr", "ssim", "mse", "LPIPS_UNAVAILABLE",
     "save_checkpoint", "load_checkpoint", "atomic_write_bytes", "atomic_write_text",
-    "metrics_document", "iteration_row", "host_record", "finished_metrics",
+    "metrics_document", "iteration_row", "host_record", "host_change", "finished_metrics",
 ]

@@ -23,6 +23,7 @@ from senerf.errors import InputError
 from .checkpoint import load_checkpoint, save_checkpoint
 from .config import TrainConfig, config_to_dict
 from .rays import RayBatchSource
+from .record import host_change, host_record
 
 __all__ = ["train_field", "TrainResult", "lr_factor", "make_occupancy", "background_color", "ExtraLoss",
            "load_state_keeping_box"]
@@ -102,7 +103,7 @@ def _state(field, optimizer, generator, occupancy, step: int, fingerprint: str, 
     state = dict(format="senerf-train-1", step=int(step), fingerprint=fingerprint,
                  field=field.state_dict(), optimizer=optimizer.state_dict(),
                  generator=generator.get_state(), generator_device=generator.device.type,
-                 seconds=float(seconds))
+                 seconds=float(seconds), host=host_record(generator.device))
     if occupancy is not None:
         state["occupancy"] = occupancy.state_dict()
     return state
@@ -123,14 +124,15 @@ def load_state_keeping_box(module: torch.nn.Module, state: dict) -> None:
     module.load_state_dict(state)
 
 
-def _restore_generator(path: Path, generator: torch.Generator, state: dict, seed: int) -> None:
+def _restore_generator(path: Path, generator: torch.Generator, state: dict, seed: int) -> bool:
     """The batch generator's state from a checkpoint; reseeded from ``(seed, step)`` with a warning when the
-    checkpoint was written on another device type (a CPU stream cannot continue as a CUDA one or back)."""
+    checkpoint was written on another device type (a CPU stream cannot continue as a CUDA one or back).
+    Returns whether it was reseeded."""
     saved_on = state.get("generator_device")  # absent before this key existed: told by whether it loads
     if saved_on in (None, generator.device.type):
         try:
             generator.set_state(state["generator"].cpu())
-            return
+            return False
         except (RuntimeError, AttributeError, TypeError):
             if saved_on is not None:
                 raise InputError("its random-generator state is unreadable; delete it or use --overwrite",
@@ -141,6 +143,7 @@ def _restore_generator(path: Path, generator: torch.Generator, state: dict, seed
     warnings.warn(f"{path}: written on {saved_on}, resumed on {generator.device.type}: the random stream "
                   f"cannot move between devices, so steps {step}+ draw from a new one seeded from (seed, step) "
                   f"(reproducible, but not what an uninterrupted run gives)", stacklevel=3)
+    return True
 
 
 def _continuation_seed(seed: int, step: int) -> int:
@@ -161,7 +164,11 @@ def _restore(path: Path, field, optimizer, generator, occupancy, fingerprint: st
                          "another output folder", file=path)
     load_state_keeping_box(field, state["field"])
     optimizer.load_state_dict(state["optimizer"])
-    _restore_generator(path, generator, state, seed)
+    if not _restore_generator(path, generator, state, seed):   # on another device type that warning says it all
+        moved = host_change(state.get("host"), host_record(generator.device))
+        if moved:   # the float sums' order follows the thread count (record.host_record)
+            warnings.warn(f"{path}: steps 1-{int(state['step'])} ran {moved}: the rest is reproducible, but not "
+                          f"bit for bit an uninterrupted run", stacklevel=3)
     if occupancy is not None:
         load_state_keeping_box(occupancy, state["occupancy"])
     seconds = state.get("seconds", 0.0)  # absent in checkpoints written before it was recorded

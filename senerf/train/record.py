@@ -14,7 +14,7 @@ import numpy as np
 from senerf import __version__
 from senerf.data import view_names
 
-__all__ = ["metrics_document", "iteration_row", "host_record", "finished_metrics"]
+__all__ = ["metrics_document", "iteration_row", "host_record", "host_change", "finished_metrics"]
 
 
 def metrics_document(scene, train_idx, test_idx, command, config: dict) -> dict:
@@ -39,8 +39,28 @@ def host_record(device) -> dict:
 
     device = torch.device(device)
     name = torch.cuda.get_device_name(device) if device.type == "cuda" else device.type
-    return {"device": name, "threads": int(torch.get_num_threads()), "torch": torch.__version__,
-            "numpy": np.__version__}
+    # plain str: torch.__version__ is a TorchVersion, which a weights_only checkpoint load refuses
+    return {"device": str(name), "threads": int(torch.get_num_threads()), "torch": str(torch.__version__),
+            "numpy": str(np.__version__)}
+
+
+def host_change(before: dict | None, now: dict) -> str:
+    """How a recorded :func:`host_record` ``before`` differs from ``now``, in words, or ``''`` when it does not
+    (or when ``before`` is not a dict: rows and checkpoints written before session 19 record no host).
+
+    Example:
+        >>> host_change({"device": "cpu", "threads": 16}, {"device": "cpu", "threads": 1})
+        'with 16 threads, this call with 1 thread'
+    """
+    if not isinstance(before, dict):
+        return ""
+    words = {"device": "on {}", "threads": "with {} thread{}", "torch": "with torch {}", "numpy": "with NumPy {}"}
+    keys = [k for k in words if k in before and k in now and before[k] != now[k]]
+
+    def said(host: dict) -> str:
+        return ", ".join(words[k].format(host[k], "" if host[k] == 1 else "s") for k in keys)
+
+    return f"{said(before)}, this call {said(now)}" if keys else ""
 
 
 def iteration_row(iteration: int, ev: dict, reliable_fraction: float | None, seconds: float, device="cpu") -> dict:

@@ -103,6 +103,40 @@ def test_resume_reproduces_uninterrupted_run(tmp_path):
     assert not torch.equal(init["table"], a["table"])
 
 
+def test_a_resume_on_another_host_says_so_and_the_same_host_is_silent(tmp_path):
+    """The checkpoint records its host (device, threads, torch, NumPy); on the CPU the float sums follow the
+    thread count, so a resume with another count warns that the rest is not bit for bit an uninterrupted run
+    (the self-training controller says the same of a finished iteration's host).  No host (a checkpoint from
+    before session 20) and the same host resume silently."""
+    import warnings
+
+    from senerf.train import host_record
+
+    rays, cfg = _rays(), _cfg()
+    _crash_at_step_8(rays, cfg, tmp_path / "b.pt")
+    state = torch.load(tmp_path / "b.pt", weights_only=True)
+    here = host_record("cpu")
+    assert state["host"] == here
+    for name, host in (("same", here), ("legacy", None)):
+        if host is None:
+            state.pop("host")
+        torch.save(state, tmp_path / f"{name}.pt")
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")
+            train_field(build_field(MODEL, seed=1), rays, cfg, extra_loss=_zero_loss,
+                        checkpoint=tmp_path / f"{name}.pt", progress=False)
+    state["host"] = dict(here, threads=here["threads"] + 14)
+    torch.save(state, tmp_path / "moved.pt")
+    threads = f"{here['threads']} thread" + ("" if here["threads"] == 1 else "s")
+    with pytest.warns(UserWarning) as caught:
+        res = train_field(build_field(MODEL, seed=1), rays, cfg, extra_loss=_zero_loss,
+                          checkpoint=tmp_path / "moved.pt", progress=False)
+    assert res.resumed_from == 5
+    assert [str(w.message) for w in caught] == [
+        f"{tmp_path / 'moved.pt'}: steps 1-5 ran with {here['threads'] + 14} threads, this call with {threads}: the "
+        f"rest is reproducible, but not bit for bit an uninterrupted run"]
+
+
 def _as_if_written_on_cuda(src: Path, dst: Path, legacy: bool = False) -> None:
     """A copy of CPU checkpoint ``src`` whose generator state is a CUDA one (16 bytes: seed, offset)."""
     state = torch.load(src, weights_only=True)

@@ -46,3 +46,16 @@ def test_each_row_records_the_host_that_finished_it(monkeypatch):
     monkeypatch.setattr(torch.cuda, "get_device_name", lambda device=None: f"Fake GPU {torch.device(device)}")
     assert host_record("cuda:1")["device"] == "Fake GPU cuda:1"
     assert iteration_row(1, ev, None, 1.0, "cuda:1")["host"]["device"] == "Fake GPU cuda:1"
+
+
+def test_host_change_names_what_differs_in_words():
+    from senerf.train import host_change
+
+    here = {"device": "cpu", "threads": 2, "torch": "2.13.0", "numpy": "2.3.0"}
+    assert host_change(None, here) == "" and host_change(here, here) == ""   # None: written before hosts were recorded
+    assert host_change(dict(here, device="NVIDIA H100"), here) == "on NVIDIA H100, this call on cpu"
+    assert host_change(dict(here, threads=2), dict(here, threads=1)) == "with 2 threads, this call with 1 thread"
+    assert host_change(dict(here, threads=1, torch="2.11.0"), here) == (
+        "with 1 thread, with torch 2.11.0, this call with 2 threads, with torch 2.13.0")
+    # a key only one side records (a later version's) is not a difference
+    assert host_change({"device": "cpu", "threads": 2}, dict(here, threads=2)) == ""
