@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import shlex
 import shutil
 import sys
@@ -28,7 +27,7 @@ from pathlib import Path
 
 from senerf import __version__
 from senerf.cliargs import (SEED_MAX, THREADS_HELP, OneLineParser, argument_type, check_device, float_flag, int_flag,
-                            run_command, set_threads, threads_flag)
+                            run_command, set_threads, short_openmp_waits, threads_flag)
 from senerf.errors import InputError
 from senerf.memory import physical_memory_bytes
 
@@ -617,10 +616,7 @@ def _attach_negative_values(argv: list[str]) -> list[str]:
 def main(argv: list[str] | None = None) -> int:
     """Entry point of ``senerf-fit``; returns the exit status (0 ok, 2 bad input, 1 internal error)."""
     argv = _attach_negative_values(list(sys.argv[1:] if argv is None else argv))
-    # OpenMP threads that spin while waiting make small torch ops ~50x slower when the cores are shared
-    # (measured on the 2-core machines: a K-Planes TV step 2.3 s -> 0.03 s); sleeping waits avoid that.
-    # Only effective before torch is first imported; an explicit setting by the user wins.
-    os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+    short_openmp_waits()   # before torch is imported: OpenMP workers spin briefly, then sleep
     return run_command(PROG, lambda: _run(build_parser().parse_args(argv), [PROG, *argv]),
                        "rerun the same command to resume")
 

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import errno
+import os
 import signal
 import sys
 import threading
@@ -17,7 +18,7 @@ import warnings
 from senerf.errors import InputError
 
 __all__ = ["OneLineParser", "argument_type", "int_flag", "float_flag", "check_device", "threads_flag", "set_threads",
-           "run_command", "SEED_MAX", "THREADS_MAX", "THREADS_HELP"]
+           "short_openmp_waits", "run_command", "SEED_MAX", "THREADS_MAX", "THREADS_HELP"]
 
 #: Largest seed either command accepts (torch generators take a signed 64-bit seed).
 SEED_MAX = 2**63 - 1
@@ -100,7 +101,8 @@ THREADS_MAX = 1024
 
 THREADS_HELP = ("torch's CPU threads (default: torch's, usually one per core). A CPU fit repeats to the bit "
                 "for the same seed, thread count and torch build only; give the count a run was made with "
-                "(metrics.json's host.threads) to repeat it on another machine")
+                "(metrics.json's host.threads) to repeat it on another machine (one with other vector "
+                "instructions may still differ; not measured)")
 
 
 def threads_flag(flag: str = "--threads"):
@@ -113,14 +115,38 @@ def set_threads(threads: int | None) -> None:
 
     The count sets how torch's CPU kernels, and senerf's compiled K-Planes kernel (which splits its points over
     ``torch.get_num_threads()`` workers), divide their sums, so it decides a CPU fit's figures to the last bit
-    (BENCHMARKS.md, session 19); the same command with ``--threads N`` repeats them on any machine with the same
-    torch build.  Importing torch is left to this call's first use, as with :func:`check_device`.
+    (BENCHMARKS.md, session 19); ``--threads N`` lets another machine with the same torch build repeat them (a CPU
+    with other vector instructions may still sum differently: not measured).  Importing torch is left to this
+    call's first use, as with :func:`check_device`.
     """
     if threads is None:
         return
     import torch
 
     torch.set_num_threads(int(threads))
+
+
+#: Spins an idle OpenMP worker makes before it sleeps (GNU libgomp, torch's OpenMP on Linux), senerf-fit's and
+#: senerf-render's default; see :func:`short_openmp_waits`.
+OPENMP_SPINS = 1000
+
+
+def short_openmp_waits(environ=os.environ) -> None:
+    """Let torch's OpenMP workers spin briefly, then sleep, unless the user chose (``setdefault``); only effective
+    before torch is first imported.
+
+    libgomp reckons ~100000 spins a millisecond, so 1000 spins is ~10 us where its default, 300000, is ~3 ms.
+    Workers that spin long make small torch ops many times slower when the cores are shared: two 200-step
+    trainings side by side on the 2-core machine took 161 s each with 30000 spins against 28 s with sleeping
+    waits (``OMP_WAIT_POLICY=PASSIVE``).  Sleeping at once costs a futex wake per parallel region: alone, a lego
+    fast fit at 100x100 took 79-82 s wall with PASSIVE and 61-62 s with 1000 spins, the same figures to the bit.
+    Side by side, two such fits took 87 s each with PASSIVE and 112-113 s with 1000 spins (65 s each with
+    ``--threads 1``).  BENCHMARKS.md, "OpenMP waits and CPU threads on the 2-core machine" (session 20).
+    ``OMP_WAIT_POLICY=PASSIVE`` stays set for OpenMP runtimes that do not read ``GOMP_SPINCOUNT``; libgomp
+    lets ``GOMP_SPINCOUNT`` override it.
+    """
+    environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+    environ.setdefault("GOMP_SPINCOUNT", str(OPENMP_SPINS))
 
 
 #: OSError numbers that say a path the user gave cannot be used as it is (permissions, a name too long, a loop

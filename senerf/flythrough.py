@@ -39,7 +39,7 @@ import numpy as np
 
 from senerf import __version__
 from senerf.cliargs import (THREADS_HELP, OneLineParser, check_device, float_flag, int_flag, run_command, set_threads,
-                            threads_flag)
+                            short_openmp_waits, threads_flag)
 from senerf.errors import InputError
 from senerf.memory import physical_memory_bytes
 
@@ -753,7 +753,7 @@ def _run(args, argv: list[str]) -> int:
 def main(argv: list[str] | None = None) -> int:
     """Entry point of ``senerf-render``; returns the exit status (0 ok, 2 bad input, 130 interrupted, 1 internal)."""
     argv = list(sys.argv[1:] if argv is None else argv)
-    os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")   # as senerf-fit (sleeping OpenMP waits on shared cores)
+    short_openmp_waits()   # as senerf-fit: OpenMP workers spin briefly, then sleep
     return run_command(PROG, lambda: _run(build_parser().parse_args(argv), [PROG, *argv]),
                        "no output written; the frames rendered so far are kept: rerun the same command to resume")
 

@@ -185,3 +185,30 @@ def test_set_threads_sets_torchs_count_and_none_leaves_it():
     for bad in ("0", str(THREADS_MAX + 1), "two"):
         with pytest.raises(InputError, match=r"argument --x: (must be >= 1 and <= 1024|expected an integer)"):
             _parse(threads_flag(), bad)
+
+
+def test_openmp_waits_are_short_by_default_and_the_users_choice_wins():
+    from senerf.cliargs import OPENMP_SPINS, short_openmp_waits
+
+    env: dict = {}
+    short_openmp_waits(env)
+    assert env == {"OMP_WAIT_POLICY": "PASSIVE", "GOMP_SPINCOUNT": str(OPENMP_SPINS)}
+    env = {"OMP_WAIT_POLICY": "ACTIVE", "GOMP_SPINCOUNT": "0"}
+    short_openmp_waits(env)
+    assert env == {"OMP_WAIT_POLICY": "ACTIVE", "GOMP_SPINCOUNT": "0"}
+
+
+def test_both_commands_set_the_waits_before_torch_is_imported():
+    """libgomp reads the setting when it loads (with torch), so importing a command's module must not import torch,
+    and its main sets the setting first thing (here on a bad flag, which returns before any torch work)."""
+    import subprocess
+    import sys
+
+    for module in ("senerf.cli", "senerf.flythrough"):
+        code = (f"import os, sys, {module} as m\n"
+                "os.environ.pop('GOMP_SPINCOUNT', None)\n"
+                "assert 'torch' not in sys.modules, 'imported torch'\n"
+                "assert m.main(['--threads', '0']) == 2\n"
+                "assert os.environ['GOMP_SPINCOUNT'] == '1000', os.environ.get('GOMP_SPINCOUNT')\n")
+        done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+        assert done.returncode == 0, (module, done.stderr)
