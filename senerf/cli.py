@@ -78,9 +78,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="image downscale factor (default 1; LLFF: 8, relative to full resolution)")
     t = p.add_argument_group("training")
     t.add_argument("--preset", choices=("fast", "balanced"), default="balanced",
-                   help="fast: 600 steps x 1024 rays, 1 self-training iteration (~100 s on lego Extreme at "
-                        "100x100, 2 CPU cores); balanced (default): 1000 x 4096, 3 iterations (~6-9 min, "
-                        "+0.8 dB over fast on 9 seeds; BENCHMARKS.md)")
+                   help="fast: 600 steps x 1024 rays, 1 self-training iteration (66 s on lego Extreme at "
+                        "100x100, 2 CPU cores); balanced (default): 1000 x 4096, 3 iterations (5 min with "
+                        "--test-views 25, +0.8 dB over fast on 9 seeds; BENCHMARKS.md)")
     t.add_argument("--steps", type=int_flag("--steps"), help="training steps per iteration (overrides preset)")
     t.add_argument("--batch-rays", type=int_flag("--batch-rays"), help="rays per step (overrides preset)")
     t.add_argument("--iterations", type=int_flag("--iterations", allow_zero=True), default=None,
