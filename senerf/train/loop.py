@@ -167,8 +167,8 @@ def _restore(path: Path, field, optimizer, generator, occupancy, fingerprint: st
     if not _restore_generator(path, generator, state, seed):   # on another device type that warning says it all
         moved = host_change(state.get("host"), host_record(generator.device))
         if moved:   # the float sums' order follows the thread count (record.host_record)
-            warnings.warn(f"{path}: steps 1-{int(state['step'])} ran {moved}: the rest is reproducible, but not "
-                          f"bit for bit an uninterrupted run", stacklevel=3)
+            warnings.warn(f"{path}: step {int(state['step'])} was reached {moved}: the rest is reproducible, but "
+                          f"not bit for bit an uninterrupted run", stacklevel=3)
     if occupancy is not None:
         load_state_keeping_box(occupancy, state["occupancy"])
     seconds = state.get("seconds", 0.0)  # absent in checkpoints written before it was recorded

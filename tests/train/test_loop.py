@@ -133,8 +133,8 @@ def test_a_resume_on_another_host_says_so_and_the_same_host_is_silent(tmp_path):
                           checkpoint=tmp_path / "moved.pt", progress=False)
     assert res.resumed_from == 5
     assert [str(w.message) for w in caught] == [
-        f"{tmp_path / 'moved.pt'}: steps 1-5 ran with {here['threads'] + 14} threads, this call with {threads}: the "
-        f"rest is reproducible, but not bit for bit an uninterrupted run"]
+        f"{tmp_path / 'moved.pt'}: step 5 was reached with {here['threads'] + 14} threads, this call with {threads}: "
+        f"the rest is reproducible, but not bit for bit an uninterrupted run"]
 
 
 def _as_if_written_on_cuda(src: Path, dst: Path, legacy: bool = False) -> None:
