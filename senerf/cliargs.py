@@ -1,6 +1,6 @@
-"""Command-line argument helpers shared by ``senerf-fit`` and ``senerf-bench``.
+"""Command-line argument helpers shared by ``senerf-fit``, ``senerf-render`` and ``senerf-bench``.
 
-Every problem is an :class:`senerf.errors.InputError` whose message names the flag, so both commands
+Every problem is an :class:`senerf.errors.InputError` whose message names the flag, so each command
 print it as one ``<prog>: error: argument --flag: <problem>`` line and exit with status 2.
 """
 
@@ -18,7 +18,8 @@ import warnings
 from senerf.errors import InputError
 
 __all__ = ["OneLineParser", "argument_type", "int_flag", "float_flag", "check_device", "threads_flag", "set_threads",
-           "short_openmp_waits", "run_command", "SEED_MAX", "THREADS_MAX", "THREADS_HELP"]
+           "short_openmp_waits", "run_command", "SEED_MAX", "THREADS_MAX", "THREADS_HELP",
+           "OPENMP_SPINS"]
 
 #: Largest seed either command accepts (torch generators take a signed 64-bit seed).
 SEED_MAX = 2**63 - 1

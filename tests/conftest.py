@@ -8,8 +8,11 @@ from pathlib import Path
 import pytest
 
 # torch's OpenMP workers spin while waiting; on a shared 2-core machine that makes small ops 10-100x
-# slower (measured: a plane-TV step 2.9 s -> 0.03 s). senerf-fit sets the same default for itself.
+# slower (measured: a plane-TV step 2.9 s -> 0.03 s). The tests keep sleeping waits (0 spins) whatever else runs;
+# senerf-fit and senerf-render spin 1000 times first (cliargs.short_openmp_waits), which a test calling their main
+# before torch is imported would otherwise set for the whole test process.
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+os.environ.setdefault("GOMP_SPINCOUNT", "0")
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
 

@@ -198,9 +198,10 @@ def test_openmp_waits_are_short_by_default_and_the_users_choice_wins():
     assert env == {"OMP_WAIT_POLICY": "ACTIVE", "GOMP_SPINCOUNT": "0"}
 
 
-def test_both_commands_set_the_waits_before_torch_is_imported():
+def test_both_commands_set_the_waits_before_torch_is_imported(tmp_path):
     """libgomp reads the setting when it loads (with torch), so importing a command's module must not import torch,
-    and its main sets the setting first thing (here on a bad flag, which returns before any torch work)."""
+    and its main must set the setting before anything imports torch: a finder records the environment at torch's
+    first import (``--threads 1`` imports it, then the missing folder is refused)."""
     import subprocess
     import sys
 
@@ -208,7 +209,14 @@ def test_both_commands_set_the_waits_before_torch_is_imported():
         code = (f"import os, sys, {module} as m\n"
                 "os.environ.pop('GOMP_SPINCOUNT', None)\n"
                 "assert 'torch' not in sys.modules, 'imported torch'\n"
-                "assert m.main(['--threads', '0']) == 2\n"
-                "assert os.environ['GOMP_SPINCOUNT'] == '1000', os.environ.get('GOMP_SPINCOUNT')\n")
+                "seen = []\n"
+                "class Spy:\n"
+                "    def find_spec(self, name, path=None, target=None):\n"
+                "        if name == 'torch' and not seen:\n"
+                "            seen.append(os.environ.get('GOMP_SPINCOUNT'))\n"
+                "        return None\n"
+                "sys.meta_path.insert(0, Spy())\n"
+                f"assert m.main([{str(tmp_path / 'nowhere')!r}, '--threads', '1']) == 2\n"
+                "assert seen == ['1000'], seen\n")
         done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
         assert done.returncode == 0, (module, done.stderr)

@@ -2,7 +2,8 @@
 
 Deterministic on the CPU for a given ``TrainConfig.seed``: every random draw (ray batches, sample jitter,
 background colours, the ``extra_loss`` hook) comes from one ``torch.Generator`` on the training device
-whose state is checkpointed, so a resumed run reproduces the uninterrupted one bit for bit.
+whose state is checkpointed, so a resumed run reproduces the uninterrupted one bit for bit on the same host (thread
+count, torch and NumPy builds; the checkpoint records it, and a resume on another one says so).
 """
 
 from __future__ import annotations
@@ -23,7 +24,7 @@ from senerf.errors import InputError
 from .checkpoint import load_checkpoint, save_checkpoint
 from .config import TrainConfig, config_to_dict
 from .rays import RayBatchSource
-from .record import host_change, host_record
+from .record import host_record, resume_host_change
 
 __all__ = ["train_field", "TrainResult", "lr_factor", "make_occupancy", "background_color", "ExtraLoss",
            "load_state_keeping_box"]
@@ -165,7 +166,7 @@ def _restore(path: Path, field, optimizer, generator, occupancy, fingerprint: st
     load_state_keeping_box(field, state["field"])
     optimizer.load_state_dict(state["optimizer"])
     if not _restore_generator(path, generator, state, seed):   # on another device type that warning says it all
-        moved = host_change(state.get("host"), host_record(generator.device))
+        moved = resume_host_change(state.get("host"), generator.device)
         if moved:   # the float sums' order follows the thread count (record.host_record)
             warnings.warn(f"{path}: step {int(state['step'])} was reached {moved}: the rest is reproducible, but "
                           f"not bit for bit an uninterrupted run", stacklevel=3)
@@ -193,9 +194,9 @@ def train_field(field: torch.nn.Module, rays: RayBatchSource, cfg: TrainConfig,
             ``cfg.checkpoint_every`` steps and at the end.  It is matched by the settings, the ray count and the
             field's shapes, not the pixels: a caller that changes the images keeps its own record (senerf-fit's
             ``run.json`` and ``run_selftraining``'s ``scene_files.json`` hold the scene files' digests).  On the
-            CPU a resume ends bit for bit as an uninterrupted run (on CUDA it continues the same random stream,
-            but CUDA's ``index_add_`` and ``cumsum`` are not deterministic, so not to the bit); on another device
-            type (CPU <-> CUDA) the ray
+            CPU a resume ends bit for bit as an uninterrupted run on the same host (another thread count, torch or
+            NumPy: a warning naming it); on CUDA it continues the same random stream, but CUDA's ``index_add_`` and
+            ``cumsum`` are not deterministic, so not to the bit; on another device type (CPU <-> CUDA) the ray
             batches continue from a new stream seeded from ``(cfg.seed, step)``, with a warning.
         progress: show a tqdm bar (step, loss, PSNR, rays/s).
         log_every: steps between history entries / progress updates.

@@ -14,7 +14,7 @@ import numpy as np
 from senerf import __version__
 from senerf.data import view_names
 
-__all__ = ["metrics_document", "iteration_row", "host_record", "host_change", "finished_metrics"]
+__all__ = ["metrics_document", "iteration_row", "host_record", "host_change", "resume_host_change", "finished_metrics"]
 
 
 def metrics_document(scene, train_idx, test_idx, command, config: dict) -> dict:
@@ -46,7 +46,8 @@ def host_record(device) -> dict:
 
 def host_change(before: dict | None, now: dict) -> str:
     """How a recorded :func:`host_record` ``before`` differs from ``now``, in words, or ``''`` when it does not
-    (or when ``before`` is not a dict: rows and checkpoints written before session 19 record no host).
+    (or when ``before`` is not a dict: ``metrics.json`` rows written before session 19 and training checkpoints
+    written before session 20 record no host).
 
     Example:
         >>> host_change({"device": "cpu", "threads": 16}, {"device": "cpu", "threads": 1})
@@ -61,6 +62,16 @@ def host_change(before: dict | None, now: dict) -> str:
         return ", ".join(words[k].format(host[k], "" if host[k] == 1 else "s") for k in keys)
 
     return f"{said(before)}, this call {said(now)}" if keys else ""
+
+
+def resume_host_change(before: dict | None, device) -> str:
+    """:func:`host_change` of a recorded host against this call's on ``device``, for a resume on the CPU only: there
+    a run repeats to the bit for the same host, and another thread count, torch or NumPy breaks that.  ``''`` on a
+    GPU, where runs do not repeat to the bit anyway (``index_add_`` and ``cumsum``) and CPU threads hardly matter."""
+    import torch
+
+    device = torch.device(device)
+    return host_change(before, host_record(device)) if device.type == "cpu" else ""
 
 
 def iteration_row(iteration: int, ev: dict, reliable_fraction: float | None, seconds: float, device="cpu") -> dict:

@@ -590,8 +590,10 @@ def test_a_resume_on_another_host_says_how_it_differs(tiny_scene, tmp_path, monk
     controller_mod.run_selftraining(scene, train_idx, test_idx, model, tcfg, cfg, out, progress=False,
                                     echo=lambda s: None)
     here = host_record("cpu")
-    monkeypatch.setattr(controller_mod, "host_record", lambda device: dict(here, threads=here["threads"] + 14,
-                                                                          torch="9.9"))
+    import senerf.train.record as record_mod
+
+    monkeypatch.setattr(record_mod, "host_record", lambda device: dict(here, threads=here["threads"] + 14,
+                                                                      torch="9.9"))
 
     def stop(*args, **kwargs):
         raise KeyboardInterrupt

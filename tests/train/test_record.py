@@ -57,5 +57,23 @@ def test_host_change_names_what_differs_in_words():
     assert host_change(dict(here, threads=2), dict(here, threads=1)) == "with 2 threads, this call with 1 thread"
     assert host_change(dict(here, threads=1, torch="2.11.0"), here) == (
         "with 1 thread, with torch 2.11.0, this call with 2 threads, with torch 2.13.0")
-    # a key only one side records (a later version's) is not a difference
+    # a key only one side records (a later version's, or an earlier one's) is not a difference
     assert host_change({"device": "cpu", "threads": 2}, dict(here, threads=2)) == ""
+    assert host_change(dict(here, threads=2), {"device": "cpu", "threads": 2}) == ""
+    assert host_change("not a record", here) == "" and host_change(5, here) == ""
+
+
+def test_a_resume_names_another_host_on_the_cpu_only(monkeypatch):
+    """On the CPU a run repeats to the bit for the same host, so a resume names what differs; on a GPU runs do not
+    repeat to the bit anyway and the CPU thread count hardly matters, so nothing is said there."""
+    import torch
+
+    import senerf.train.record as record_mod
+    from senerf.train import host_record, resume_host_change
+
+    here = host_record("cpu")
+    assert resume_host_change(dict(here, threads=here["threads"] + 1), "cpu").startswith(
+        f"with {here['threads'] + 1} threads, this call with {here['threads']} thread")
+    assert resume_host_change(here, torch.device("cpu")) == "" and resume_host_change(None, "cpu") == ""
+    monkeypatch.setattr(record_mod, "host_record", lambda device: dict(here, device="Fake GPU"))
+    assert resume_host_change(dict(here, device="Fake GPU", threads=here["threads"] + 1), "cuda:0") == ""
