@@ -49,7 +49,7 @@ from .. import geometry
 from ..data import changed_files, run_file_digests
 from ..errors import InputError
 from ..train import (atomic_write_text, build_field, camera_rays, config_to_dict, differences_text, eval_images,
-                     evaluate, finished_metrics, iteration_row, load_checkpoint, resume_host_change,
+                     evaluate, finished_metrics, iteration_row, load_checkpoint, resume_host_line,
                      load_state_keeping_box, make_occupancy, metrics_document, render_views, save_checkpoint,
                      settings_differences, train_field, write_png)
 from .distill import DistillationLoss, DistillConfig, PseudoRays, prior_weights, unified_prior_weights
@@ -730,10 +730,9 @@ def run_selftraining(scene, train_idx, test_idx, model, train_cfg, cfg: SelfTrai
                 return stored
         else:
             echo(f"selftrain: resuming after iteration {done} from {teacher_path}")
-            moved = resume_host_change(metrics["iterations"][-1].get("host"), device)
-            if moved:
-                echo(f"selftrain: iteration {done} ran {moved}: the rest is reproducible, but not bit for bit "
-                     f"an uninterrupted run")
+            line = resume_host_line(metrics["iterations"][-1].get("host"), device, f"selftrain: iteration {done} ran")
+            if line:
+                echo(line)
     else:
         _check_scene_files(files_record, files_now)
         if not any(ckpt_dir.glob("*.pt")):   # a fresh run (a folder of an older one records them with its teacher)

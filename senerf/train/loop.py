@@ -24,7 +24,7 @@ from senerf.errors import InputError
 from .checkpoint import load_checkpoint, save_checkpoint
 from .config import TrainConfig, config_to_dict
 from .rays import RayBatchSource
-from .record import host_record, resume_host_change
+from .record import host_record, resume_host_line
 
 __all__ = ["train_field", "TrainResult", "lr_factor", "make_occupancy", "background_color", "ExtraLoss",
            "load_state_keeping_box"]
@@ -166,10 +166,9 @@ def _restore(path: Path, field, optimizer, generator, occupancy, fingerprint: st
     load_state_keeping_box(field, state["field"])
     optimizer.load_state_dict(state["optimizer"])
     if not _restore_generator(path, generator, state, seed):   # on another device type that warning says it all
-        moved = resume_host_change(state.get("host"), generator.device)
-        if moved:   # the float sums' order follows the thread count (record.host_record)
-            warnings.warn(f"{path}: step {int(state['step'])} was reached {moved}: the rest is reproducible, but "
-                          f"not bit for bit an uninterrupted run", stacklevel=3)
+        line = resume_host_line(state.get("host"), generator.device, f"{path}: step {int(state['step'])} was reached")
+        if line:   # the float sums' order follows the thread count (record.host_record)
+            warnings.warn(line, stacklevel=3)
     if occupancy is not None:
         load_state_keeping_box(occupancy, state["occupancy"])
     seconds = state.get("seconds", 0.0)  # absent in checkpoints written before it was recorded

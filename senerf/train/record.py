@@ -14,7 +14,8 @@ import numpy as np
 from senerf import __version__
 from senerf.data import view_names
 
-__all__ = ["metrics_document", "iteration_row", "host_record", "host_change", "resume_host_change", "finished_metrics"]
+__all__ = ["metrics_document", "iteration_row", "host_record", "host_change", "resume_host_line",
+           "finished_metrics"]
 
 
 def metrics_document(scene, train_idx, test_idx, command, config: dict) -> dict:
@@ -64,14 +65,20 @@ def host_change(before: dict | None, now: dict) -> str:
     return f"{said(before)}, this call {said(now)}" if keys else ""
 
 
-def resume_host_change(before: dict | None, device) -> str:
-    """:func:`host_change` of a recorded host against this call's on ``device``, for a resume on the CPU only: there
-    a run repeats to the bit for the same host, and another thread count, torch or NumPy breaks that.  ``''`` on a
-    GPU, where runs do not repeat to the bit anyway (``index_add_`` and ``cumsum``) and CPU threads hardly matter."""
+def resume_host_line(before: dict | None, device, what: str) -> str:
+    """The line a resume on ``device`` prints when the recorded host ``before`` differs from this call's, or ``''``:
+    ``"{what} {host_change}: the rest is reproducible, but not bit for bit an uninterrupted run"``.
+
+    On the CPU only: there a run repeats to the bit for the same host, and another thread count, torch or NumPy
+    breaks that.  ``''`` on a GPU, where runs do not repeat to the bit anyway (``index_add_`` and ``cumsum``) and
+    CPU threads hardly matter.  ``what`` says what ran on ``before`` ("selftrain: iteration 2 ran").
+    """
     import torch
 
-    device = torch.device(device)
-    return host_change(before, host_record(device)) if device.type == "cpu" else ""
+    if torch.device(device).type != "cpu":
+        return ""
+    moved = host_change(before, host_record(device))
+    return f"{what} {moved}: the rest is reproducible, but not bit for bit an uninterrupted run" if moved else ""
 
 
 def iteration_row(iteration: int, ev: dict, reliable_fraction: float | None, seconds: float, device="cpu") -> dict:

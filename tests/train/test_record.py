@@ -69,11 +69,13 @@ def test_a_resume_names_another_host_on_the_cpu_only(monkeypatch):
     import torch
 
     import senerf.train.record as record_mod
-    from senerf.train import host_record, resume_host_change
+    from senerf.train import host_record, resume_host_line
 
     here = host_record("cpu")
-    assert resume_host_change(dict(here, threads=here["threads"] + 1), "cpu").startswith(
-        f"with {here['threads'] + 1} threads, this call with {here['threads']} thread")
-    assert resume_host_change(here, torch.device("cpu")) == "" and resume_host_change(None, "cpu") == ""
+    threads = f"{here['threads']} thread" + ("" if here["threads"] == 1 else "s")
+    assert resume_host_line(dict(here, threads=here["threads"] + 1), "cpu", "step 5 ran") == (
+        f"step 5 ran with {here['threads'] + 1} threads, this call with {threads}: the rest is reproducible, but not "
+        f"bit for bit an uninterrupted run")
+    assert resume_host_line(here, torch.device("cpu"), "x") == "" and resume_host_line(None, "cpu", "x") == ""
     monkeypatch.setattr(record_mod, "host_record", lambda device: dict(here, device="Fake GPU"))
-    assert resume_host_change(dict(here, device="Fake GPU", threads=here["threads"] + 1), "cuda:0") == ""
+    assert resume_host_line(dict(here, device="Fake GPU", threads=here["threads"] + 1), "cuda:0", "x") == ""
