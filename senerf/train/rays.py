@@ -18,6 +18,8 @@ from .config import ModelConfig
 
 __all__ = ["RayBatchSource", "ray_aabb_bounds", "camera_rays", "per_view_intrinsics", "ray_dist_to_z_depth"]
 
+_PARALLEL_T = 1e12   # the entry / exit distance ray_aabb_bounds gives an axis its ray runs parallel to
+
 
 def ray_aabb_bounds(origins: torch.Tensor, dirs: torch.Tensor, aabb, min_near: float = 1e-3
                     ) -> tuple[torch.Tensor, torch.Tensor]:
@@ -32,17 +34,29 @@ def ray_aabb_bounds(origins: torch.Tensor, dirs: torch.Tensor, aabb, min_near: f
     Returns:
         ``(near (R,), far (R,))``; a ray that misses the box gets ``far = near`` (an empty segment, so it
         renders as pure background).
+
+    Convention: the box is closed.  A direction component below 1e-12 in magnitude counts as parallel to
+    that axis's slab: the ray stays inside it for all ``t`` when its origin lies within ``[min, max]``,
+    faces included (on either face alike), and misses the box otherwise.  A zero direction has no segment
+    worth the name (the bounds come out as ``[min_near, 1e12]`` inside the box).
     """
     if origins.ndim != 2 or origins.shape[1] != 3 or dirs.shape != origins.shape:
         raise ValueError(f"origins and dirs must both be (R, 3), got {tuple(origins.shape)}, {tuple(dirs.shape)}")
     box = torch.as_tensor(aabb, dtype=origins.dtype, device=origins.device)
     if box.shape != (2, 3):
         raise ValueError(f"aabb must be (2, 3), got {tuple(box.shape)}")
-    safe = torch.where(dirs.abs() < 1e-12, torch.full_like(dirs, 1e-12), dirs)
+    parallel = dirs.abs() < 1e-12
+    safe = torch.where(parallel, torch.ones_like(dirs), dirs)
     t0 = (box[0] - origins) / safe
     t1 = (box[1] - origins) / safe
-    near = torch.minimum(t0, t1).amax(dim=-1).clamp_min(min_near)
-    far = torch.maximum(t0, t1).amin(dim=-1)
+    # a parallel axis bounds nothing when the origin is within its slab, and empties the segment otherwise;
+    # +-1e12 (finite in float32) keeps a missed ray's empty segment finite
+    in_slab = (origins >= box[0]) & (origins <= box[1])
+    unbounded = torch.full_like(t0, _PARALLEL_T)
+    entry = torch.where(parallel, torch.where(in_slab, -unbounded, unbounded), torch.minimum(t0, t1))
+    leave = torch.where(parallel, torch.where(in_slab, unbounded, -unbounded), torch.maximum(t0, t1))
+    near = entry.amax(dim=-1).clamp_min(min_near)
+    far = leave.amin(dim=-1)
     far = torch.maximum(far, near)
     return near, far
 

@@ -33,6 +33,46 @@ def test_ray_aabb_bounds_negative_and_mixed_directions_by_hand(dtype):
     assert float(far[2]) == float(near[2])
 
 
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+@pytest.mark.parametrize("zero", [0.0, -0.0, 1e-13, -1e-13])
+def test_ray_aabb_bounds_rays_lying_in_a_face_are_inside_on_either_face(dtype, zero):
+    # Catches: the parallel-axis guard replacing a zero component by +1e-12, which kept a ray lying in the
+    # box's y = -2 face (t in [0, huge]) but dropped one lying in the y = +2 face (t in [-huge, 0]): the box is
+    # closed, so both run along x through it.  Box [-1, 1] x [-2, 2] x [-3, 3], d = (1, zero, 0):
+    #  rays 0 / 1: o (-5, -2, 0) / (-5, 2, 0): x-slab [4, 6] on either face;
+    #  ray 2: o (-5, 0, 3), lying in the z = +3 face as well: [4, 6];
+    #  ray 3: o (-5, 2.5, 0), beside the y slab: misses (far = near);
+    #  ray 4: o (0, -2, 0) inside on the face: the camera is in the box, [min_near, 1].
+    o = torch.tensor([[-5.0, -2.0, 0.0], [-5.0, 2.0, 0.0], [-5.0, 0.0, 3.0], [-5.0, 2.5, 0.0], [0.0, -2.0, 0.0]],
+                     dtype=dtype)
+    d = torch.tensor([[1.0, zero, 0.0]] * 5, dtype=dtype)
+    near, far = ray_aabb_bounds(o, d, ((-1, -2, -3), (1, 2, 3)), min_near=1e-3)
+    tol = 1e-6 if dtype == torch.float32 else 1e-12
+    np.testing.assert_allclose(near[[0, 1, 2, 4]].numpy(), [4.0, 4.0, 4.0, 1e-3], rtol=tol)
+    np.testing.assert_allclose(far[[0, 1, 2, 4]].numpy(), [6.0, 6.0, 6.0, 1.0], rtol=tol)
+    assert float(far[3]) == float(near[3]) and np.isfinite(float(near[3]))
+
+
+def test_ray_aabb_bounds_are_symmetric_under_mirroring_the_scene():
+    # Catches: any face- or sign-dependent guard (the old +1e-12 substitute for a zero component): mirroring
+    # origins, directions and box through y = 0 must give the same bounds, here for rays that lie in faces,
+    # graze edges and cross the box along and off the axes (directions with exact zeros, by construction).
+    g = torch.Generator().manual_seed(0)
+    box = torch.tensor([[-1.0, -2.0, -3.0], [1.0, 2.0, 3.0]], dtype=torch.float64)
+    corners = torch.tensor([[x, y, z] for x in (-1.0, 0.0, 1.0) for y in (-2.0, 0.0, 2.0) for z in (-3.0, 3.0)],
+                           dtype=torch.float64)
+    axes = torch.eye(3, dtype=torch.float64)
+    d = torch.cat([axes, -axes, torch.randn(12, 3, generator=g, dtype=torch.float64)])
+    o = (corners[:, None, :] - 4.0 * d[None, :, :]).reshape(-1, 3)
+    d = d.repeat(corners.shape[0], 1)
+    mirror = torch.tensor([1.0, -1.0, 1.0], dtype=torch.float64)
+    near, far = ray_aabb_bounds(o, d, box)
+    near_m, far_m = ray_aabb_bounds(o * mirror, d * mirror, box)   # the box is its own mirror image
+    assert torch.equal(near, near_m) and torch.equal(far, far_m)
+    hits = far > near
+    assert 0 < int(hits.sum()) < hits.numel()   # some rays cross the box, some miss it
+
+
 def test_camera_inside_a_tiny_box_starts_at_a_box_relative_near():
     # Catches: camera_rays clamping near to an absolute 1e-3 (which would empty a 1e-2-wide scene's rays
     # near the camera) instead of min(1e-3, 1e-3 x the box's smallest side): box side 0.02 -> 2e-5.
