@@ -464,6 +464,9 @@ def _run(args, argv) -> int:
                          f"evaluation (SSIM) needs at least {SSIM_MIN_SIDE}x{SSIM_MIN_SIDE}", field="--downscale")
     protocol = args.protocol or _default_protocol(scene, fmt, args.views)
     train_idx, test_idx = fewshot_split(scene, protocol, views=args.views, n_views=args.n_views, seed=args.seed)
+    if len(test_idx) == 0:   # protocol 'all' on a scene without a test split: a fit is scored on its test views
+        raise InputError(f"protocol {protocol!r} leaves no test views (scene {scene.name!r} has no test split); "
+                         "use 'llff' or 'views'", field="--protocol")
     tested, test_views = f"{len(test_idx)} test views", args.test_views
     if test_views is not None:
         subset = spread_views(test_idx, test_views)   # checks the number

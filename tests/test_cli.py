@@ -623,6 +623,19 @@ def test_a_colmap_object_capture_with_a_background_is_warned_about(tmp_path, cap
                                                "the box (") and "points3D.txt" in err[0]
 
 
+def test_a_protocol_that_leaves_no_test_views_is_refused_before_anything_is_written(tmp_path, capsys):
+    # Catches: `--protocol all` on a scene without a test split training for the whole run and then stopping
+    # with an internal error ("no test views", a traceback) and a half-written output folder (so at 79e2799).
+    from senerf.procedural.export import export_blender_scene
+
+    scene = export_blender_scene(tmp_path / "no_test", n_train=4, n_val=0, n_test=0, width=16, height=16, seed=0)
+    out = tmp_path / "run"
+    assert main([str(scene), "--out", str(out), *TINY]) == 2
+    assert _one_error_line(capsys) == ("senerf-fit: error: --protocol: protocol 'all' leaves no test views (scene "
+                                       "'no_test' has no test split); use 'llff' or 'views'")
+    assert not out.exists()
+
+
 def test_the_default_protocol_is_one_every_scene_folder_supports(tiny_scene, tmp_path, capsys):
     # Before, every object scene defaulted to `extreme`, which only the NeRF Synthetic scenes (looked up by
     # folder name) can use: a capture of one's own failed with "no Extreme views known" (so at a325121).
@@ -847,6 +860,9 @@ def test_spread_views_keeps_the_ends_and_spreads_the_rest():
     for bad in (0, 201, 2.0, True):
         with pytest.raises(InputError, match="--test-views"):
             spread_views(idx, bad)
+    # Catches: an empty list of views read as "a number of views from 1 to the 0 there are"
+    with pytest.raises(InputError, match="--test-views: there are no views to choose 1 from"):
+        spread_views(np.arange(0), 1)
 
 
 def test_self_training_that_extends_a_baseline_run_does_not_score_the_teacher_again(tiny_scene, tmp_path, capsys,

@@ -127,9 +127,11 @@ def spread_views(idx, k: int, field: str = "--test-views") -> np.ndarray:
         [100, 150, 200, 249, 299]
 
     Raises:
-        InputError: naming ``field`` when ``k`` is below 1 or above ``n``.
+        InputError: naming ``field`` when ``k`` is below 1 or above ``n``, or ``idx`` is empty.
     """
     idx = np.asarray(idx, dtype=np.int64).reshape(-1)
+    if idx.size == 0:
+        raise InputError(f"there are no views to choose {k!r} from", field=field)
     if isinstance(k, bool) or not isinstance(k, numbers.Integral) or not 1 <= k <= idx.size:
         raise InputError(f"expected a number of views from 1 to the {idx.size} there are, got {k!r}", field=field)
     return idx[_evenly(idx.size, int(k))]

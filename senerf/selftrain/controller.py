@@ -682,8 +682,8 @@ def run_selftraining(scene, train_idx, test_idx, model, train_cfg, cfg: SelfTrai
         the ``metrics.json`` dict (DESIGN.md contract).
 
     Raises:
-        InputError: before anything is trained, when pseudo views cannot be sampled around the training views
-            (:func:`pseudo_view_centre_problem`), or when one view's features would not fit in memory
+        InputError: before anything is trained, when ``test_idx`` is empty, when pseudo views cannot be sampled
+            around the training views (:func:`pseudo_view_centre_problem`), or when one view's features would not fit in memory
             (:func:`senerf.selftrain.features_memory_problem`).
     """
     from ..train import RayBatchSource
@@ -693,6 +693,8 @@ def run_selftraining(scene, train_idx, test_idx, model, train_cfg, cfg: SelfTrai
     student_cfg = student_cfg or train_cfg
     device = torch.device(train_cfg.device)
     train_idx = np.asarray(train_idx, dtype=np.int64).reshape(-1)
+    if np.asarray(test_idx).size == 0:   # every iteration is scored on them: refused before any training
+        raise InputError("no test views to score the iterations on", field="test_idx")
     problem = (pseudo_view_centre_problem(scene, train_idx) if cfg.iterations > 0 and cfg.reliability != "oracle"
                else None)
     if problem is not None:

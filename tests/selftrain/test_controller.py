@@ -72,6 +72,21 @@ def test_config_checks_and_schedules():
         cfg.iterations = 5  # frozen
 
 
+def test_no_test_views_are_refused_before_anything_is_trained_or_written(tiny_scene, tmp_path, monkeypatch):
+    # Catches: an empty test_idx training the teacher and then failing in evaluate ("no test views", a ValueError
+    # after the training, with a checkpoint left in the folder; so at 79e2799).
+    from senerf.train import TrainConfig, choose_model
+
+    monkeypatch.setattr(controller_mod, "train_field", lambda *a, **k: pytest.fail("trained"))
+    train_idx = tiny_scene.splits["train"][:3]
+    model = choose_model(tiny_scene, train_idx, {"n_samples": 16, "resolution": 32}, echo=lambda s: None)
+    out = tmp_path / "run"
+    with pytest.raises(InputError, match="test_idx: no test views to score the iterations on"):
+        controller_mod.run_selftraining(tiny_scene, train_idx, np.arange(0), model, TrainConfig(steps=8),
+                                        SelfTrainConfig(iterations=1), out, progress=False, echo=lambda s: None)
+    assert not out.exists()
+
+
 def test_tiny_end_to_end_with_resume(tiny_scene, tmp_path, monkeypatch):
     from senerf.train import TrainConfig, choose_model
 
