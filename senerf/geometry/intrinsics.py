@@ -130,7 +130,7 @@ class Intrinsics:
         Raises:
             ValueError: non-positive / non-finite factor, or a non-integer resulting size.
         """
-        s = _positive_finite(factor, "factor")
+        s = _positive_finite(factor, "scaled(factor)")
         w, h = self.width * s, self.height * s
         if abs(w - round(w)) > 1e-9 * max(1.0, w) or abs(h - round(h)) > 1e-9 * max(1.0, h):
             raise ValueError(

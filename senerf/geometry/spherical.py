@@ -140,12 +140,14 @@ def _spherical_angles(a: np.ndarray, center, up, dtype) -> tuple:
     c = as_float(center, "center", np.float64)
     check_last(c, (3,), "center")
     e1, e2, u = spherical_basis(up)
+    if not np.isfinite(c).all():
+        raise ValueError("spherical_from_pose: center must be finite")
     p = a[..., :3, 3] - c
     if not np.isfinite(p).all():
-        raise ValueError("spherical_from_pose: camera centre equals center (or is non-finite)")
+        raise ValueError("spherical_from_pose: a camera centre is non-finite, or too far from center to subtract")
     p_unit, r = unit_and_norm(p)  # the direction is exact at any scale, r may overflow to inf
     if (r <= 0).any():
-        raise ValueError("spherical_from_pose: camera centre equals center (or is non-finite)")
+        raise ValueError("spherical_from_pose: a camera centre equals center")
     pu = np.sum(p_unit * u, axis=-1)
     p1, p2 = np.sum(p_unit * e1, axis=-1), np.sum(p_unit * e2, axis=-1)
     el = np.degrees(np.arctan2(pu, np.hypot(p1, p2)))

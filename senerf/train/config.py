@@ -167,7 +167,10 @@ class ModelConfig:
     def __post_init__(self) -> None:
         if self.field not in _FIELDS:
             raise InputError(f"must be one of {', '.join(_FIELDS)}, got {self.field!r}", field="field")
-        box = np.asarray(self.aabb, dtype=np.float64)
+        try:
+            box = np.asarray(self.aabb, dtype=np.float64)
+        except (TypeError, ValueError):   # a string, a dict, ragged rows: not numbers
+            box = np.full((0,), np.nan)
         if box.shape != (2, 3) or not np.all(np.isfinite(box)) or not np.all(box[1] > box[0]):
             raise InputError(f"must be ((xmin,ymin,zmin),(xmax,ymax,zmax)) with max > min, got {self.aabb!r}",
                              field="aabb")
@@ -478,7 +481,7 @@ def choose_model(scene, train_idx, overrides: Mapping[str, Any] | None = None,
         _scale_densities(cfg_values, overrides, width, why)
     try:
         cfg = ModelConfig(**cfg_values)
-    except TypeError as exc:  # pragma: no cover - names are checked above
+    except TypeError as exc:  # an unknown override name
         raise InputError(str(exc), field="overrides") from None
     if cfg.field == "nerf":   # the plane resolution does not apply; say what the MLP is instead
         why["field"] = f"NeRF MLP, {nerf_description()}"
