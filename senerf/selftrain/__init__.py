@@ -17,8 +17,8 @@ Public API (see DESIGN.md):
 from .controller import (RELIABILITY_KINDS, PseudoLabels, SelfTrainConfig, dataset_pseudo_views, estimate_reliability,
                          known_images, oracle_reliability, pseudo_view_centre_problem, reliability_mask_quality,
                          run_selftraining)
-from .distill import (DistillationLoss, DistillConfig, PseudoRays, bins_with_fractions, gaussian_kernel,
-                      gaussian_prior, neighbour_offsets, prior_weights, unified_prior_weights)
+from .distill import (DistillationLoss, DistillConfig, DistillConfigError, PseudoRays, bins_with_fractions,
+                      gaussian_kernel, gaussian_prior, neighbour_offsets, prior_weights, unified_prior_weights)
 from .features import (FEATURE_CHANNELS, DaisyFeatures, FeatureExtractor, LazyViewFeatures, VGG19Features,
                        features_fit_gpu, features_memory_problem, features_on_device, known_view_features,
                        make_feature_extractor)
@@ -30,8 +30,8 @@ __all__ = [
     "known_view_features", "features_on_device", "features_fit_gpu", "FEATURE_CHANNELS", "features_memory_problem",
     "NO_MATCH", "ViewSimilarity", "bilinear_sample", "cosine_similarity", "view_similarity",
     "adaptive_threshold", "resolve_threshold", "threshold_weights", "gt_reliable_mask", "mask_quality",
-    "DistillConfig", "gaussian_kernel", "neighbour_offsets", "prior_weights", "unified_prior_weights",
-    "gaussian_prior", "bins_with_fractions", "PseudoRays", "DistillationLoss",
+    "DistillConfig", "DistillConfigError", "gaussian_kernel", "neighbour_offsets", "prior_weights",
+    "unified_prior_weights", "gaussian_prior", "bins_with_fractions", "PseudoRays", "DistillationLoss",
     "SelfTrainConfig", "PseudoLabels", "run_selftraining", "estimate_reliability", "known_images",
     "reliability_mask_quality", "dataset_pseudo_views", "oracle_reliability", "RELIABILITY_KINDS",
     "pseudo_view_centre_problem",

@@ -36,6 +36,7 @@ import functools
 import hashlib
 import json
 import math
+import numbers
 import shutil
 import time
 from dataclasses import dataclass, replace
@@ -52,7 +53,8 @@ from ..train import (atomic_write_text, build_field, camera_rays, config_to_dict
                      evaluate, finished_metrics, iteration_row, load_checkpoint, resume_host_line,
                      load_state_keeping_box, make_occupancy, metrics_document, render_views, save_checkpoint,
                      settings_differences, train_field, write_png)
-from .distill import DistillationLoss, DistillConfig, PseudoRays, prior_weights, unified_prior_weights
+from .distill import (DistillationLoss, DistillConfig, DistillConfigError, PseudoRays, prior_weights,
+                      unified_prior_weights)
 from .features import (FEATURE_NAMES, features_fit_gpu, features_memory_problem, features_on_device,
                        known_view_features, make_feature_extractor)
 from .labelrecord import (LABELLED_VIEW_ARRAYS, labelled_view_layout, labelling_digest, read_labelled_view,
@@ -141,19 +143,28 @@ class SelfTrainConfig(DistillConfig):
             raise InputError(f"must be in [0, 1], got {self.empty_opacity!r}", field="empty_opacity")
         if not 0 < self.oracle_max_error <= 1:
             raise InputError(f"must be in (0, 1], got {self.oracle_max_error!r}", field="oracle_max_error")
-        if not isinstance(self.iterations, int) or self.iterations < 0:
-            raise InputError(f"must be an integer >= 0, got {self.iterations!r}", field="iterations")
-        if not isinstance(self.n_pseudo_per_input, int) or self.n_pseudo_per_input < 1:
-            raise InputError(f"must be an integer >= 1, got {self.n_pseudo_per_input!r}", field="n_pseudo_per_input")
+        for name, least in (("iterations", 0), ("n_pseudo_per_input", 1), ("seed", None)):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, numbers.Integral) or (least is not None
+                                                                                       and value < least):
+                raise InputError(f"must be an integer{'' if least is None else f' >= {least}'}, got {value!r}",
+                                 field=name)
+            object.__setattr__(self, name, int(value))   # a NumPy integer as a plain int (JSON, checkpoints)
         if self.features not in FEATURE_NAMES:
             raise InputError(f"must be one of {', '.join(FEATURE_NAMES)}, got {self.features!r}", field="features")
         if self.threshold not in THRESHOLD_KINDS:
             raise InputError(f"must be one of {', '.join(THRESHOLD_KINDS)}, got {self.threshold!r}",
                              field="threshold")
-        if not (0 <= self.alpha0 <= 1 and self.alpha_step >= 0):
-            raise InputError("alpha0 must be in [0, 1] and alpha_step >= 0", field="alpha0")
-        if not (self.pseudo_range_deg >= 0 and self.pseudo_range_step_deg >= 0):
-            raise InputError("pseudo ranges must be >= 0 degrees", field="pseudo_range_deg")
+        if not 0 <= self.alpha0 <= 1:
+            raise InputError(f"must be in [0, 1], got {self.alpha0!r}", field="alpha0")
+        for name in ("alpha_step", "pseudo_range_deg", "pseudo_range_step_deg", "occlusion_rel_tol"):
+            value = getattr(self, name)
+            if not (isinstance(value, numbers.Real) and math.isfinite(value) and value >= 0):
+                raise InputError(f"must be a finite number >= 0, got {value!r}", field=name)
+        if not -1 <= self.fixed_tau <= 1:   # a cosine similarity
+            raise InputError(f"must be in [-1, 1], got {self.fixed_tau!r}", field="fixed_tau")
+        if not (isinstance(self.beta, numbers.Real) and math.isfinite(self.beta) and self.beta > 0):
+            raise InputError(f"must be a finite number > 0, got {self.beta!r}", field="beta")
         if not 0 < self.opacity_threshold <= 1:
             raise InputError(f"must be in (0, 1], got {self.opacity_threshold!r}", field="opacity_threshold")
         if self.empty_opacity > self.opacity_threshold:
@@ -165,8 +176,8 @@ class SelfTrainConfig(DistillConfig):
                              field="batch_empty")
         try:
             super().__post_init__()
-        except ValueError as exc:
-            raise InputError(str(exc), field="distillation") from None
+        except DistillConfigError as exc:
+            raise InputError(str(exc).removeprefix(f"{exc.field} "), field=exc.field) from None
 
     def alpha(self, iteration: int) -> float:
         """Adaptive-threshold alpha of iteration ``iteration >= 1`` (capped at 1)."""
@@ -683,8 +694,8 @@ def run_selftraining(scene, train_idx, test_idx, model, train_cfg, cfg: SelfTrai
 
     Raises:
         InputError: before anything is trained, when ``test_idx`` is empty, when pseudo views cannot be sampled
-            around the training views (:func:`pseudo_view_centre_problem`), or when one view's features would not fit in memory
-            (:func:`senerf.selftrain.features_memory_problem`).
+            around the training views (:func:`pseudo_view_centre_problem`), or when one view's features would not
+            fit in memory (:func:`senerf.selftrain.features_memory_problem`).
     """
     from ..train import RayBatchSource
 

@@ -28,6 +28,8 @@ For 'unified' the neighbour weights are ``max(s_xy - s_ij, 0) g(x, y)`` as in th
 
 from __future__ import annotations
 
+import math
+import numbers
 from dataclasses import dataclass
 
 import numpy as np
@@ -37,6 +39,7 @@ from ..fields import render_rays, volume_render
 
 __all__ = [
     "DistillConfig",
+    "DistillConfigError",
     "gaussian_kernel",
     "neighbour_offsets",
     "prior_weights",
@@ -51,6 +54,7 @@ __all__ = [
 
 GEOMETRY_TARGETS = ("weights", "log_density")
 STUDENT_GRIDS = ("teacher", "student", "none")
+BACKGROUNDS = ("random", "white", "black")   # DistillationLoss's background policies
 
 
 @dataclass(frozen=True)
@@ -104,6 +108,12 @@ class DistillConfig:
     "Measured" without more: lego Extreme at 100x100, fast preset (one iteration), research runs over
     ``run_selftraining`` with that one setting changed, seeds 0-2, paired by seed with the defaults'
     17.44 / 17.10 / 17.85 dB (BENCHMARKS.md, session 5); mean ± std of the paired differences.
+
+    Raises:
+        DistillConfigError: a ``ValueError`` whose ``field`` (and first word) names the setting out of range:
+            batch sizes integers (``>= 1``; ``batch_empty >= 0``), loss weights finite and ``>= 0``,
+            ``kernel_size`` an odd integer ``>= 3``, ``kernel_std`` finite and ``> 0``.  NumPy integers are taken as
+            plain ints.
     """
 
     batch_reliable: int = 512
@@ -120,20 +130,38 @@ class DistillConfig:
     student_grid: str = "teacher"
 
     def __post_init__(self) -> None:
-        if self.batch_reliable < 1 or self.batch_prior < 1:
-            raise ValueError("batch sizes must be >= 1")
-        if self.batch_empty < 0:
-            raise ValueError(f"batch_empty must be >= 0, got {self.batch_empty}")
-        if min(self.lambda_color, self.lambda_geometry, self.lambda_prior) < 0:
-            raise ValueError("loss weights must be >= 0")
+        for name, least in (("batch_reliable", 1), ("batch_prior", 1), ("batch_empty", 0)):
+            _integer(self, name, least)
+        for name in ("lambda_color", "lambda_geometry", "lambda_prior"):
+            value = getattr(self, name)
+            if not (isinstance(value, numbers.Real) and math.isfinite(value) and value >= 0):
+                raise DistillConfigError(name, f"must be a finite number >= 0, got {value!r}")
         if self.geometry_target not in GEOMETRY_TARGETS:
-            raise ValueError(f"geometry_target must be one of {GEOMETRY_TARGETS}, got {self.geometry_target!r}")
+            raise DistillConfigError("geometry_target", f"must be one of {GEOMETRY_TARGETS}, got "
+                                                         f"{self.geometry_target!r}")
         if self.student_grid not in STUDENT_GRIDS:
-            raise ValueError(f"student_grid must be one of {STUDENT_GRIDS}, got {self.student_grid!r}")
-        if self.kernel_size < 3 or self.kernel_size % 2 == 0:
-            raise ValueError(f"kernel_size must be odd and >= 3, got {self.kernel_size}")
-        if not self.kernel_std > 0:
-            raise ValueError(f"kernel_std must be > 0, got {self.kernel_std}")
+            raise DistillConfigError("student_grid", f"must be one of {STUDENT_GRIDS}, got {self.student_grid!r}")
+        _integer(self, "kernel_size", 3)
+        if self.kernel_size % 2 == 0:
+            raise DistillConfigError("kernel_size", f"must be odd and >= 3, got {self.kernel_size!r}")
+        if not (isinstance(self.kernel_std, numbers.Real) and math.isfinite(self.kernel_std) and self.kernel_std > 0):
+            raise DistillConfigError("kernel_std", f"must be a finite number > 0, got {self.kernel_std!r}")
+
+
+class DistillConfigError(ValueError):
+    """A :class:`DistillConfig` field out of range: ``field`` names it, the message starts with it."""
+
+    def __init__(self, field: str, message: str):
+        super().__init__(f"{field} {message}")
+        self.field = field
+
+
+def _integer(cfg, name: str, least: int) -> None:
+    """``cfg.name`` as a plain int ``>= least`` (NumPy integers too, not bools); DistillConfigError otherwise."""
+    value = getattr(cfg, name)
+    if isinstance(value, bool) or not isinstance(value, numbers.Integral) or value < least:
+        raise DistillConfigError(name, f"must be an integer >= {least}, got {value!r}")
+    object.__setattr__(cfg, name, int(value))
 
 
 def neighbour_offsets(q: int = 3) -> np.ndarray:
@@ -349,7 +377,7 @@ def _background(kind: str, generator: torch.Generator, device) -> torch.Tensor:
         return torch.ones(3, device=device)
     if kind == "black":
         return torch.zeros(3, device=device)
-    raise ValueError(f"background must be 'random', 'white' or 'black', got {kind!r}")
+    raise ValueError(f"background must be one of {BACKGROUNDS}, got {kind!r}")
 
 
 class DistillationLoss:
@@ -370,6 +398,8 @@ class DistillationLoss:
                  background: str = "random", teacher_occupancy=None):
         if n_samples < 1:
             raise ValueError(f"n_samples must be >= 1, got {n_samples}")
+        if background not in BACKGROUNDS:   # here, not at the first step of a training
+            raise ValueError(f"background must be one of {BACKGROUNDS}, got {background!r}")
         self.teacher = teacher
         self.pseudo = pseudo
         self.cfg = cfg

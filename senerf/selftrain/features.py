@@ -342,8 +342,9 @@ class DaisyFeatures(FeatureExtractor):
     name = "daisy"
 
     def __init__(self, radius: float = 15.0, q_radius: int = 3, q_theta: int = 8, q_hist: int = 8):
-        if radius <= 0 or q_radius < 1 or q_theta < 1 or q_hist < 1:
-            raise ValueError("DAISY parameters must be positive")
+        for name, value in (("radius", radius), ("q_radius", q_radius), ("q_theta", q_theta), ("q_hist", q_hist)):
+            if not value > 0 or (name != "radius" and value < 1):
+                raise ValueError(f"DAISY {name} must be {'> 0' if name == 'radius' else '>= 1'}, got {value!r}")
         self.radius = float(radius)
         self.q_radius, self.q_theta, self.q_hist = int(q_radius), int(q_theta), int(q_hist)
         self.channels = (self.q_radius * self.q_theta + 1) * self.q_hist

@@ -10,6 +10,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
+import numbers
 import re
 from dataclasses import dataclass, fields
 from typing import Any, Callable, Mapping
@@ -106,8 +107,9 @@ class TrainConfig:
             raise InputError(f"must be in [0, 1], got {self.lr_final_factor!r}", field="lr_final_factor")
         if not (math.isfinite(self.tv_weight) and self.tv_weight >= 0):
             raise InputError(f"must be >= 0, got {self.tv_weight!r}", field="tv_weight")
-        if not isinstance(self.seed, int) or isinstance(self.seed, bool):
+        if not isinstance(self.seed, numbers.Integral) or isinstance(self.seed, bool):
             raise InputError(f"must be an integer, got {self.seed!r}", field="seed")
+        object.__setattr__(self, "seed", int(self.seed))   # a NumPy integer as a plain int (JSON, checkpoints)
         if not is_device_name(self.device):
             raise InputError(f"must be 'cpu', 'cuda' or 'cuda:N', got {self.device!r}", field="device")
 
@@ -192,9 +194,10 @@ class ModelConfig:
         if not self.multires or any(m < 1 for m in self.multires):
             raise InputError(f"must be positive integers, got {self.multires!r}", field="multires")
         if self.train_background not in _BACKGROUNDS:
-            raise InputError(f"must be one of {', '.join(_BACKGROUNDS)}", field="train_background")
+            raise InputError(f"must be one of {', '.join(_BACKGROUNDS)}, got {self.train_background!r}",
+                             field="train_background")
         if self.eval_background not in ("white", "black"):
-            raise InputError("must be 'white' or 'black'", field="eval_background")
+            raise InputError(f"must be 'white' or 'black', got {self.eval_background!r}", field="eval_background")
 
     @property
     def frame_origin(self) -> tuple[float, float, float]:
