@@ -197,7 +197,8 @@ def _prepare_run_outputs(out: Path, results: Path, results_flag: str) -> None:
     try:
         (out / "runs").mkdir(parents=True, exist_ok=True)
     except OSError as exc:
-        raise InputError(f"cannot write there ({_os_reason(exc, out)}); choose another --out", file=out) from None
+        raise InputError(f"cannot write there ({_os_reason(exc, out / 'runs')}); choose another --out",
+                         file=out / "runs") from None   # the runs' folder: the path in the way, when it is a file
 
 
 def _os_reason(exc: OSError, path: Path | str) -> str:
@@ -236,9 +237,11 @@ def _read_results(path: Path | str, flag: str | None = None) -> tuple[list[dict]
         raise InputError(f"cannot read ({exc.strerror or exc}){hint}", file=path) from None
 
 
-def _load(path: str) -> list[dict]:
+def _load(path: str, needs: tuple = ()) -> list[dict]:
     """The records of a results file: unparseable lines skipped with a warning, an error when no line
-    could be read (an empty file is an empty benchmark)."""
+    could be read (an empty file is an empty benchmark).  ``needs``: fields every finished line must carry for
+    the command at hand (``senerf-bench run`` writes them all; a line written or cut by hand may lack some), the
+    first line lacking one named."""
     if not Path(path).is_file():
         raise InputError("results file not found", file=path)
     records, bad = _read_results(path)
@@ -247,7 +250,17 @@ def _load(path: str) -> list[dict]:
                          file=path)
     if bad:
         print(f"senerf-bench: warning: skipped {bad} unparseable line(s) in {path}", file=sys.stderr)
+    for r in records:
+        missing = [name for name in needs if name not in r] if r.get("status") == "ok" else []
+        if missing:
+            raise InputError(f"run {r['run_key']}: {missing[0]}: missing (senerf-bench run writes it; this command "
+                             "reads it)", file=path)
     return records
+
+
+#: What ``plot`` reads of each finished line beyond the fields every one carries, and what ``report`` reads
+_PLOT_NEEDS = ("ssim", "seconds_cumulative")
+_REPORT_NEEDS = (*_PLOT_NEEDS, "commit", "timestamp", "bench_command")
 
 
 def _cmd_summarize(args: argparse.Namespace) -> int:
@@ -265,8 +278,8 @@ def _flags_named(flags: dict):
     try:
         yield
     except InputError as exc:
-        if exc.file is None and exc.field in flags:
-            raise InputError(exc.problem, field=flags[exc.field]) from None
+        if exc.field in flags:   # the file, where there is one, is the scene folder the setting does not fit
+            raise InputError(exc.problem, file=exc.file, field=flags[exc.field]) from None
         raise
 
 
@@ -288,10 +301,14 @@ def _cmd_report(args: argparse.Namespace, argv: list[str]) -> int:
     for target, flag in ((out, "--out"), (into, "--into")):
         if target is not None:
             _not_an_input(target, flag, [args.results, *args.masks])
-    text = make_report(_load(args.results), ["senerf-bench", *argv], title=args.title)
+    try:
+        text = make_report(_load(args.results, _REPORT_NEEDS), ["senerf-bench", *argv], title=args.title)
+    except InputError as exc:   # a line of the results file
+        raise (InputError(exc.problem, file=args.results, field=exc.field) if exc.file is None else exc) from None
     for name in args.masks:
+        text = _read_text(Path(name))   # its own InputError ("cannot read"), not taken for bad JSON below
         try:
-            doc = json.loads(_read_text(Path(name)))
+            doc = json.loads(text)
         except ValueError as exc:
             raise InputError(f"not JSON ({exc})", file=name) from None
         try:
@@ -344,7 +361,7 @@ def splice_report(document: str, report: str, path: Path | str = "document") -> 
 
 
 def _cmd_plot(args: argparse.Namespace) -> int:
-    records = _load(args.results)
+    records = _load(args.results, _PLOT_NEEDS)
     aggs = aggregate(records)
     if not aggs:
         raise InputError("no finished runs to plot", file=args.results)

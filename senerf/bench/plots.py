@@ -77,12 +77,14 @@ def plot_frontier(aggs: list[Aggregate], path: str | Path, title: str = "") -> P
     for i, (key, finals) in enumerate(sorted(by_method.items())):
         finals.sort(key=lambda a: PRESET_ORDER.get(a.preset, 9))
         label = " ".join(key[2:]) if len({k[:2] for k in by_method}) == 1 else " ".join(key)
-        ys, yerr = [a.psnr.mean for a in finals], [_err(a.psnr) for a in finals]
         for ax, stat in ((ax_t, "seconds"), (ax_m, "peak_memory_mib")):
-            xs = [getattr(a, stat).mean for a in finals]
-            ax.errorbar(xs, ys, xerr=[_err(getattr(a, stat)) for a in finals], yerr=yerr, color=colours[i],
-                        marker="os^Dv"[i % 5], capsize=3, label=label)
-            for a, x, y in zip(finals, xs, ys):
+            shown = [a for a in finals if getattr(a, stat).mean is not None]   # memory: null when unmeasured
+            if not shown:
+                continue
+            xs, ys = [getattr(a, stat).mean for a in shown], [a.psnr.mean for a in shown]
+            ax.errorbar(xs, ys, xerr=[_err(getattr(a, stat)) for a in shown], yerr=[_err(a.psnr) for a in shown],
+                        color=colours[i], marker="os^Dv"[i % 5], capsize=3, label=label)
+            for a, x, y in zip(shown, xs, ys):
                 ax.annotate(a.preset, (x, y), textcoords="offset points", xytext=(4, 4), fontsize=8)
     ax_t.set_xscale("log")
     ax_t.xaxis.set_major_locator(LogLocator(base=10.0, subs=(1.0, 2.0, 5.0)))   # 20, 50, 100, 200, 500 s ...

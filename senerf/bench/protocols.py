@@ -20,6 +20,7 @@ random8; 504x378 for LLFF).
 from __future__ import annotations
 
 import json
+import re
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -44,6 +45,7 @@ __all__ = [
 ]
 
 _SYNTHETIC_SIDE = 800            # NeRF Synthetic images are 800x800
+_DIGITS = re.compile(r"[0-9]+")   # ASCII digits only: str.isdigit() takes '²', which int() refuses
 _LLFF_SIZE = (4032, 3024)        # LLFF full resolution (W, H)
 
 #: family -> (scene kind, number of training views, default resolution suffix)
@@ -140,13 +142,13 @@ def parse_protocol(name: str) -> Protocol:
     kind, n_views, default_res = FAMILIES[family]
     res = res or default_res
     if kind == "object":
-        if not res.isdigit() or int(res) <= 0 or _SYNTHETIC_SIDE % int(res):
+        if not _DIGITS.fullmatch(res) or int(res) <= 0 or _SYNTHETIC_SIDE % int(res):
             raise InputError(f"{name!r}: resolution must be a divisor of 800 such as 100, 200, 400, 800",
                              field="protocol")
         side = int(res)
         return Protocol(f"{family}@{side}", family, kind, n_views, _SYNTHETIC_SIDE // side, (side, side))
     w_s, _, h_s = res.partition("x")
-    if not (w_s.isdigit() and h_s.isdigit()) or int(w_s) <= 0 or int(h_s) <= 0:
+    if not (_DIGITS.fullmatch(w_s) and _DIGITS.fullmatch(h_s)) or int(w_s) <= 0 or int(h_s) <= 0:
         raise InputError(f"{name!r}: LLFF resolution must be WxH such as 504x378", field="protocol")
     w, h = int(w_s), int(h_s)
     factor = _LLFF_SIZE[0] // w
@@ -226,12 +228,17 @@ def native_size(scene_dir: str | Path) -> tuple[int, int]:
             hwf = np.load(path)[0, :15].reshape(3, 5)[:, 4]
         except (OSError, ValueError, IndexError) as exc:
             raise InputError(f"cannot read the image size ({exc})", file=path, field="hwf") from None
+        if not (np.isfinite(hwf[:2]).all() and (hwf[:2] >= 1).all()):
+            raise InputError(f"the image size must be finite and >= 1, got {hwf[0]!r} x {hwf[1]!r}", file=path,
+                             field="hwf")
         return int(round(hwf[0])), int(round(hwf[1]))
     path = d / "transforms_train.json"
     try:
         rel = json.loads(path.read_text())["frames"][0]["file_path"]
     except (OSError, ValueError, KeyError, IndexError, TypeError) as exc:
         raise InputError(f"cannot find the first frame ({exc})", file=path, field="frames[0].file_path") from None
+    if not isinstance(rel, str):
+        raise InputError(f"must be a string, got {rel!r}", file=path, field="frames[0].file_path")
     image = (d / rel) if Path(rel).suffix else (d / (rel + ".png"))
     from PIL import Image   # pillow is a dependency; reads the header only
 

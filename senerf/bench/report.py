@@ -11,6 +11,7 @@ import datetime as _dt
 import shlex
 from dataclasses import dataclass
 
+from ..errors import InputError
 from .ladder import (contrasts_markdown, ladder_markdown, method_contrasts, preset_ladder, teacher_dependence,
                      teacher_dependence_markdown)
 from .protocols import parse_protocol
@@ -93,6 +94,12 @@ def make_report(records: list[dict], report_command: list[str], title: str = "Be
         report_command: argv of the command generating this report (stated in the header).
         title: section heading.
     """
+    for r in records:   # a protocol name this version does not know: say which run, before any table
+        if r.get("status") == "ok":
+            try:
+                parse_protocol(r["protocol"])
+            except InputError as exc:
+                raise InputError(f"{exc.problem} (run {r['run_key']})", field=exc.field) from None
     records, off_size = _split_off_size(records)
     ok = latest_ok_lines(records)
     now = _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")

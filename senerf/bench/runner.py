@@ -35,7 +35,7 @@ class BenchOutcome:
 def dry_run_lines(specs: list[RunSpec], results_path: str | Path, runs_dir: str | Path) -> list[str]:
     """What ``--dry-run`` prints: a count line, then the ``senerf-fit`` command of every pending run."""
     todo, skipped = pending_specs(specs, results_path)
-    return ([f"# {len(specs)} runs: {skipped} already finished, {len(todo)} to run"]
+    return ([f"# {skipped + len(todo)} runs: {skipped} already finished, {len(todo)} to run"]   # duplicates once
             + [shlex.join(["senerf-fit", *spec.fit_args(Path(runs_dir) / spec.dirname())]) for spec in todo])
 
 
@@ -75,7 +75,7 @@ def run_benchmark(specs: list[RunSpec], executor: Executor, results_path: str | 
     """
     commit = commit if commit is not None else git_commit()
     todo, skipped = pending_specs(specs, results_path)
-    log(f"{len(specs)} runs: {skipped} already finished, {len(todo)} to run")
+    log(f"{skipped + len(todo)} runs: {skipped} already finished, {len(todo)} to run")   # duplicates counted once
     futures = {executor.submit(run_fn, spec, cfg): spec for spec in todo}
     ok = failed = 0
     for fut in cf.as_completed(futures):
@@ -85,8 +85,9 @@ def run_benchmark(specs: list[RunSpec], executor: Executor, results_path: str | 
         if outcome["status"] == "ok":
             ok += 1
             final = outcome["metrics"]["iterations"][-1]
+            memory = outcome.get("peak_memory_mib")   # None: not measured (the wrapper's record unreadable)
             log(f"ok      {spec.key()}  PSNR {final['psnr']:.2f}  {outcome['run_seconds']:.0f} s  "
-                f"{outcome['peak_memory_mib']:.0f} MiB")
+                + ("memory not measured" if memory is None else f"{memory:.0f} MiB"))
         else:
             failed += 1
             log(f"FAILED  {spec.key()}  {outcome['error']}")

@@ -112,7 +112,13 @@ def expand_specs(scene_dirs: list[str], protocols: list[str], methods: list[str]
         for proto, meth, preset, seed in itertools.product(protos, meths, presets, seeds):
             if kind is not None and proto.kind != kind:
                 continue
-            factor = None if size is None else proto.downscale_for(size)
+            try:
+                factor = None if size is None else proto.downscale_for(size)
+            except InputError as exc:   # which scene's images
+                raise InputError(exc.problem, file=scene_dir, field=exc.field) from None
+            if proto.family == "synthetic-random8" and n_train < proto.n_views:   # drawn from the train split
+                raise InputError(f"{proto.name} draws {proto.n_views} training views; the train split has "
+                                 f"{n_train}", file=scene_dir, field="protocol")
             specs.append(RunSpec(str(scene_dir), Path(scene_dir).name, proto.name, meth.name, preset,
                                  int(seed), iterations if meth.selftrain else 0, device, steps, n_train, factor))
     return specs
