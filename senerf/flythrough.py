@@ -305,14 +305,15 @@ def path_cameras(run: FittedRun, path: str, frames: int, scale: float = 1.0, ele
         try:
             c2w = orbit_path(inputs, frames, elevation=elevation)
         except ValueError:   # the inputs look along parallel axes: orbit what all the scene's cameras look at
+            center = _common_point(scene, "orbit")
             try:
-                c2w = orbit_path(inputs, frames, center=_common_point(scene), elevation=elevation)
+                c2w = orbit_path(inputs, frames, center=center, elevation=elevation)
             except ValueError as exc:
-                raise InputError(f"no orbit for this scene ({exc}); use --path spiral", field="--path") from None
+                raise InputError(f"no orbit for this scene ({exc}); use --path test", field="--path") from None
     elif path == "spiral":
         near, far = scene.near, scene.far
         if near is None or far is None:   # object scenes: focus on the point the inputs look at
-            focus = float(np.linalg.norm(_common_point(scene) - inputs[:, :3, 3].mean(axis=0)))
+            focus = float(np.linalg.norm(_common_point(scene, "spiral") - inputs[:, :3, 3].mean(axis=0)))
         else:
             focus = spiral_focus_depth(near, far)
         try:
@@ -324,13 +325,16 @@ def path_cameras(run: FittedRun, path: str, frames: int, scale: float = 1.0, ele
     return np.asarray(c2w, dtype=np.float64), (k,) * int(frames)
 
 
-def _common_point(scene) -> np.ndarray:
+def _common_point(scene, path: str) -> np.ndarray:
+    """The point the scene's cameras look at, for an orbit or spiral around it; InputError naming ``--path``
+    when they look along parallel axes (no such point, and no flag of senerf-render gives one)."""
     from senerf.geometry import closest_point_to_axes
 
     try:
         return closest_point_to_axes(scene.c2w)
-    except ValueError as exc:
-        raise InputError(f"the scene's cameras look along parallel axes ({exc})", field="--path") from None
+    except ValueError:
+        raise InputError(f"no {path} for this scene: its cameras look along parallel axes, so there is no point "
+                         "they all look at; use --path test", field="--path") from None
 
 
 def _scaled(k, scale: float):

@@ -263,6 +263,10 @@ def read_rgba(path: Path, field: str, file: Path | None = None, clipped: list | 
         raise InputError(f"cannot read image {path} ({exc.strerror or exc})", file=file, field=field) from None
     if not found:
         raise InputError(f"image not found: {path}", file=file, field=field)
+    if path.suffix.lower() == ".exr":   # listed as an image (so a file_path keeps it), but nothing installed decodes it
+        raise InputError(f"cannot read image {path}: no installed decoder reads OpenEXR (imageio has no backend for "
+                         "it and OpenCV's wheels are built without it); convert it to a 16-bit PNG or TIFF",
+                         file=file, field=field)
     try:
         if _png_bit_depth(path) == 16:
             # Pillow (behind imageio) truncates 16-bit colour PNGs to 8 bits; OpenCV keeps all 16.  Pillow checks
@@ -282,8 +286,13 @@ def read_rgba(path: Path, field: str, file: Path | None = None, clipped: list | 
         if isinstance(exc, OSError) and exc.errno is not None:   # the file itself: permissions, a long name, ...
             raise InputError(f"cannot read image {path} ({exc.strerror or exc})", file=file, field=field) from None
         msg = f"cannot decode image {path} ({type(exc).__name__}: {exc})".splitlines()[0]
+        if path.suffix.lower() not in IMAGE_SUFFIXES:   # e.g. imageio's "itk could not be found" for '.img'
+            readable = ", ".join(x for x in IMAGE_SUFFIXES if x != ".exr")
+            msg = f"cannot decode image {path}: {path.suffix or 'no suffix'} is not a format senerf reads ({readable})"
         raise InputError(msg, file=file, field=field) from None
     img = np.asarray(img)
+    if img.ndim == 4 and img.shape[0] == 1:   # a one-frame animation (GIF, APNG): imageio gives (1, H, W, C)
+        img = img[0]
     if img.dtype.byteorder not in ("=", "|"):   # Pillow's I;16B: big-endian samples, as native ones
         img = img.astype(img.dtype.newbyteorder("="))
     if img.ndim == 2:

@@ -276,6 +276,9 @@ def load_ngp(root: Path, downscale: float = 1.0) -> Scene:
             if not isinstance(names, list) or not all(isinstance(x, str) for x in names):
                 raise InputError("expected a list of file names", file=file, field=key)
             split_lists[split] = {_norm_rel(x) for x in names}
+    if split_lists and "train" not in split_lists:   # as nerfstudio: given split lists, the training one is needed
+        raise InputError(f"missing beside {', '.join(f'{s}_filenames' for s in split_lists)}: no frame to train on",
+                         file=file, field="train_filenames")
     entries, missing, split_idx = [], [], {s: [] for s in BLENDER_SPLITS}
     for i, fr in enumerate(frames):
         entry = _frame_entry(root, meta, fr, i, file)

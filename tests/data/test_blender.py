@@ -121,6 +121,10 @@ def test_ngp_nerfstudio_split_lists(tmp_path, writers):
     ({"train_filenames": ["images/f_0.png"], "test_filenames": ["f_1.png"]}, "test_filenames",
      "none of its 1 names is the file_path of a frame"),
     ({"train_filenames": ["img/f_0.png", "img/f_2.png"]}, "train_filenames", "none of its 2 names"),
+    # given other split lists, a missing training list left an empty train split, refused later by senerf-fit
+    # as a --protocol / --views problem (so before 2026-11-23); nerfstudio refuses it too
+    ({"test_filenames": ["images/f_1.png"], "val_filenames": []}, "train_filenames",
+     "missing beside val_filenames, test_filenames: no frame to train on"),
 ])
 def test_ngp_split_lists_that_select_no_frame_are_refused(tmp_path, writers, extra, field, message):
     # an empty train list said "--n-views: must be in [1, 0]", and lists matching no frame were ignored,
