@@ -48,7 +48,7 @@ def machine_info(device: str = "cpu") -> dict:
 def _cpu_model() -> str:
     try:
         for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
+            if line.startswith("model name") and ":" in line:
                 return line.split(":", 1)[1].strip()
     except OSError:
         pass
@@ -60,7 +60,7 @@ def _memory_gib() -> float | None:
         for line in Path("/proc/meminfo").read_text().splitlines():
             if line.startswith("MemTotal:"):
                 return round(int(line.split()[1]) / 2**20, 1)
-    except (OSError, ValueError):
+    except (OSError, ValueError, IndexError):   # IndexError: a MemTotal line without its value
         pass
     return None
 
@@ -73,10 +73,21 @@ def _version(package: str) -> str | None:
 
 
 def _gpu_name(device: str) -> str:
+    """``"cuda:1: <name>"``: ``nvidia-smi``'s name of the GPU ``device`` selects (its index through
+    ``CUDA_VISIBLE_DEVICES`` when that lists indices); ``device`` alone when that cannot be told (no nvidia-smi,
+    UUIDs in ``CUDA_VISIBLE_DEVICES``, an index beyond the list).  nvidia-smi counts in PCI bus order, CUDA (without
+    ``CUDA_DEVICE_ORDER=PCI_BUS_ID``) fastest first; each fit's own ``metrics.json`` ``host`` names the GPU torch
+    used."""
+    index = int(device.partition(":")[2] or 0)
+    visible = [v.strip() for v in os.environ.get("CUDA_VISIBLE_DEVICES", "").split(",") if v.strip()]
+    if visible:
+        if index >= len(visible) or not visible[index].isdecimal():
+            return device
+        index = int(visible[index])
     try:
         out = subprocess.run(["nvidia-smi", "--query-gpu=name", "--format=csv,noheader"],
                              capture_output=True, text=True, timeout=30, check=True)
-        names = [n.strip() for n in out.stdout.splitlines() if n.strip()]
-        return f"{device}: {names[0]}" if names else device
     except (OSError, subprocess.SubprocessError):
         return device
+    names = [n.strip() for n in out.stdout.splitlines() if n.strip()]
+    return f"{device}: {names[index]}" if index < len(names) else device

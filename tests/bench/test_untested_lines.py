@@ -115,10 +115,38 @@ def test_gpu_name_falls_back_to_the_device_when_nvidia_smi_fails(monkeypatch, fa
 
 def test_gpu_name_is_the_first_gpu_listed(monkeypatch):
     # Catches: the name not prefixed with the device, the last GPU taken, or an empty listing indexed (IndexError).
+    monkeypatch.delenv("CUDA_VISIBLE_DEVICES", raising=False)
     _fake_run(monkeypatch, "\n  NVIDIA H100 80GB HBM3 \nNVIDIA A100\n")
     assert machine._gpu_name("cuda") == "cuda: NVIDIA H100 80GB HBM3"
     _fake_run(monkeypatch, " \n\n")
     assert machine._gpu_name("cuda") == "cuda"
+
+
+@pytest.mark.parametrize("visible, device, expected", [
+    (None, "cuda:1", "cuda:1: B"),                 # the device's own index
+    ("2,0", "cuda", "cuda: C"),                    # cuda = the first visible GPU, physical 2
+    ("2,0", "cuda:1", "cuda:1: A"),                # the second visible, physical 0
+    ("GPU-1234", "cuda", "cuda"),                  # a UUID: which one cannot be told here
+    ("0", "cuda:1", "cuda:1"),                     # beyond the visible list
+    (None, "cuda:5", "cuda:5"),                    # beyond nvidia-smi's list
+])
+def test_gpu_name_is_the_gpu_the_device_selects(monkeypatch, visible, device, expected):
+    # Catches: every GPU named after nvidia-smi's first whatever cuda:N or CUDA_VISIBLE_DEVICES select (so before
+    # 2026-11-23), or an index beyond either list raising IndexError.
+    if visible is None:
+        monkeypatch.delenv("CUDA_VISIBLE_DEVICES", raising=False)
+    else:
+        monkeypatch.setenv("CUDA_VISIBLE_DEVICES", visible)
+    _fake_run(monkeypatch, "A\nB\nC\n")
+    assert machine._gpu_name(device) == expected
+
+
+@pytest.mark.parametrize("cpuinfo, meminfo", [("model name\n", "MemTotal:\n"), ("model name  nocolon\n", "MemTotal:")])
+def test_proc_lines_without_their_value_fall_back(monkeypatch, cpuinfo, meminfo):
+    # Catches: a "model name" line without a colon or a "MemTotal:" line without a value raising IndexError.
+    _fake_files(monkeypatch, {"/proc/cpuinfo": cpuinfo, "/proc/meminfo": meminfo})
+    monkeypatch.setattr(machine.platform, "processor", lambda: "proc")
+    assert machine._cpu_model() == "proc" and machine._memory_gib() is None
 
 
 def test_machine_info_asks_nvidia_smi_only_for_a_gpu_and_counts_usable_cores(monkeypatch):
