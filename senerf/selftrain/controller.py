@@ -53,7 +53,7 @@ from ..train import (atomic_write_text, build_field, camera_rays, config_to_dict
                      evaluate, finished_metrics, iteration_row, load_checkpoint, resume_host_line,
                      load_state_keeping_box, make_occupancy, metrics_document, render_views, save_checkpoint,
                      settings_differences, train_field, write_png)
-from .distill import (DistillationLoss, DistillConfig, DistillConfigError, PseudoRays, prior_weights,
+from .distill import (DistillationLoss, DistillConfig, DistillConfigError, PseudoRays, is_number, prior_weights,
                       unified_prior_weights)
 from .features import (FEATURE_NAMES, features_fit_gpu, features_memory_problem, features_on_device,
                        known_view_features, make_feature_extractor)
@@ -139,34 +139,32 @@ class SelfTrainConfig(DistillConfig):
         if self.reliability not in RELIABILITY_KINDS:
             raise InputError(f"must be one of {', '.join(RELIABILITY_KINDS)}, got {self.reliability!r}",
                              field="reliability")
-        if not 0 <= self.empty_opacity <= 1:
-            raise InputError(f"must be in [0, 1], got {self.empty_opacity!r}", field="empty_opacity")
-        if not 0 < self.oracle_max_error <= 1:
-            raise InputError(f"must be in (0, 1], got {self.oracle_max_error!r}", field="oracle_max_error")
-        for name, least in (("iterations", 0), ("n_pseudo_per_input", 1), ("seed", None)):
+        for name, least in (("iterations", 0), ("n_pseudo_per_input", 1), ("seed", 0)):
             value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, numbers.Integral) or (least is not None
-                                                                                       and value < least):
-                raise InputError(f"must be an integer{'' if least is None else f' >= {least}'}, got {value!r}",
-                                 field=name)
+            if isinstance(value, bool) or not isinstance(value, numbers.Integral) or value < least:
+                raise InputError(f"must be an integer >= {least}, got {value!r}", field=name)
             object.__setattr__(self, name, int(value))   # a NumPy integer as a plain int (JSON, checkpoints)
         if self.features not in FEATURE_NAMES:
             raise InputError(f"must be one of {', '.join(FEATURE_NAMES)}, got {self.features!r}", field="features")
         if self.threshold not in THRESHOLD_KINDS:
             raise InputError(f"must be one of {', '.join(THRESHOLD_KINDS)}, got {self.threshold!r}",
                              field="threshold")
-        if not 0 <= self.alpha0 <= 1:
-            raise InputError(f"must be in [0, 1], got {self.alpha0!r}", field="alpha0")
+        for name, low, high, low_open in (("empty_opacity", 0, 1, False), ("oracle_max_error", 0, 1, True),
+                                          ("alpha0", 0, 1, False), ("fixed_tau", -1, 1, False),   # a cosine
+                                          ("opacity_threshold", 0, 1, True)):
+            value = getattr(self, name)
+            if not (is_number(value) and (low < value if low_open else low <= value) and value <= high):
+                raise InputError(f"must be in {'(' if low_open else '['}{low}, {high}], got {value!r}", field=name)
         for name in ("alpha_step", "pseudo_range_deg", "pseudo_range_step_deg", "occlusion_rel_tol"):
             value = getattr(self, name)
-            if not (isinstance(value, numbers.Real) and math.isfinite(value) and value >= 0):
+            if not (is_number(value) and value >= 0):
                 raise InputError(f"must be a finite number >= 0, got {value!r}", field=name)
-        if not -1 <= self.fixed_tau <= 1:   # a cosine similarity
-            raise InputError(f"must be in [-1, 1], got {self.fixed_tau!r}", field="fixed_tau")
-        if not (isinstance(self.beta, numbers.Real) and math.isfinite(self.beta) and self.beta > 0):
+        if not (is_number(self.beta) and self.beta > 0):
             raise InputError(f"must be a finite number > 0, got {self.beta!r}", field="beta")
-        if not 0 < self.opacity_threshold <= 1:
-            raise InputError(f"must be in (0, 1], got {self.opacity_threshold!r}", field="opacity_threshold")
+        try:
+            super().__post_init__()   # the distillation settings, batch_empty's type among them
+        except DistillConfigError as exc:
+            raise InputError(exc.message, field=exc.field) from None
         if self.empty_opacity > self.opacity_threshold:
             raise InputError(f"must be <= opacity_threshold ({self.opacity_threshold!r}), got "
                              f"{self.empty_opacity!r}: foreground pixels would be labelled empty space",
@@ -174,10 +172,6 @@ class SelfTrainConfig(DistillConfig):
         if self.batch_empty > 0 and self.empty_opacity <= 0:
             raise InputError("batch_empty > 0 draws empty-space rays apart, which needs empty_opacity > 0",
                              field="batch_empty")
-        try:
-            super().__post_init__()
-        except DistillConfigError as exc:
-            raise InputError(str(exc).removeprefix(f"{exc.field} "), field=exc.field) from None
 
     def alpha(self, iteration: int) -> float:
         """Adaptive-threshold alpha of iteration ``iteration >= 1`` (capped at 1)."""

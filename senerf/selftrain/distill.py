@@ -50,6 +50,8 @@ __all__ = [
     "bins_with_fractions",
     "GEOMETRY_TARGETS",
     "STUDENT_GRIDS",
+    "BACKGROUNDS",
+    "is_number",
 ]
 
 GEOMETRY_TARGETS = ("weights", "log_density")
@@ -134,7 +136,7 @@ class DistillConfig:
             _integer(self, name, least)
         for name in ("lambda_color", "lambda_geometry", "lambda_prior"):
             value = getattr(self, name)
-            if not (isinstance(value, numbers.Real) and math.isfinite(value) and value >= 0):
+            if not (is_number(value) and value >= 0):
                 raise DistillConfigError(name, f"must be a finite number >= 0, got {value!r}")
         if self.geometry_target not in GEOMETRY_TARGETS:
             raise DistillConfigError("geometry_target", f"must be one of {GEOMETRY_TARGETS}, got "
@@ -144,7 +146,7 @@ class DistillConfig:
         _integer(self, "kernel_size", 3)
         if self.kernel_size % 2 == 0:
             raise DistillConfigError("kernel_size", f"must be odd and >= 3, got {self.kernel_size!r}")
-        if not (isinstance(self.kernel_std, numbers.Real) and math.isfinite(self.kernel_std) and self.kernel_std > 0):
+        if not (is_number(self.kernel_std) and self.kernel_std > 0):
             raise DistillConfigError("kernel_std", f"must be a finite number > 0, got {self.kernel_std!r}")
 
 
@@ -152,8 +154,16 @@ class DistillConfigError(ValueError):
     """A :class:`DistillConfig` field out of range: ``field`` names it, the message starts with it."""
 
     def __init__(self, field: str, message: str):
-        super().__init__(f"{field} {message}")
-        self.field = field
+        super().__init__(field, message)   # both in args: the error pickles (a worker process hands it back)
+        self.field, self.message = field, message
+
+    def __str__(self) -> str:
+        return f"{self.field} {self.message}"
+
+
+def is_number(value) -> bool:
+    """A finite real number (Python or NumPy), not a bool: what a weight, a range or a threshold may be."""
+    return isinstance(value, numbers.Real) and not isinstance(value, bool) and math.isfinite(value)
 
 
 def _integer(cfg, name: str, least: int) -> None:

@@ -37,8 +37,9 @@ def ray_aabb_bounds(origins: torch.Tensor, dirs: torch.Tensor, aabb, min_near: f
 
     Convention: the box is closed.  A direction component below 1e-12 in magnitude counts as parallel to
     that axis's slab: the ray stays inside it for all ``t`` when its origin lies within ``[min, max]``,
-    faces included (on either face alike), and misses the box otherwise.  A zero direction has no segment
-    worth the name (the bounds come out as ``[min_near, 1e12]`` inside the box).
+    faces included (on either face alike), and misses the box otherwise (its empty segment then sits at
+    ``near = far = 1e12``).  A zero direction has no segment worth the name (the bounds come out as
+    ``[min_near, 1e12]`` inside the box).
     """
     if origins.ndim != 2 or origins.shape[1] != 3 or dirs.shape != origins.shape:
         raise ValueError(f"origins and dirs must both be (R, 3), got {tuple(origins.shape)}, {tuple(dirs.shape)}")

@@ -57,7 +57,9 @@ def _fake_files(monkeypatch, files: dict):
 
 
 def _fake_run(monkeypatch, result):
-    """machine's subprocess.run returns ``result`` (a stdout string) or raises it (an exception); calls recorded."""
+    """machine's subprocess.run returns ``result`` (a stdout string) or raises it (an exception); calls recorded.
+    ``CUDA_VISIBLE_DEVICES`` is cleared (GPU nodes set it; it selects which listed GPU is named)."""
+    monkeypatch.delenv("CUDA_VISIBLE_DEVICES", raising=False)
     calls = []
 
     def run(argv, **kw):
@@ -115,7 +117,6 @@ def test_gpu_name_falls_back_to_the_device_when_nvidia_smi_fails(monkeypatch, fa
 
 def test_gpu_name_is_the_first_gpu_listed(monkeypatch):
     # Catches: the name not prefixed with the device, the last GPU taken, or an empty listing indexed (IndexError).
-    monkeypatch.delenv("CUDA_VISIBLE_DEVICES", raising=False)
     _fake_run(monkeypatch, "\n  NVIDIA H100 80GB HBM3 \nNVIDIA A100\n")
     assert machine._gpu_name("cuda") == "cuda: NVIDIA H100 80GB HBM3"
     _fake_run(monkeypatch, " \n\n")
@@ -133,11 +134,9 @@ def test_gpu_name_is_the_first_gpu_listed(monkeypatch):
 def test_gpu_name_is_the_gpu_the_device_selects(monkeypatch, visible, device, expected):
     # Catches: every GPU named after nvidia-smi's first whatever cuda:N or CUDA_VISIBLE_DEVICES select (so before
     # 2026-11-23), or an index beyond either list raising IndexError.
-    if visible is None:
-        monkeypatch.delenv("CUDA_VISIBLE_DEVICES", raising=False)
-    else:
+    _fake_run(monkeypatch, "A\nB\nC\n")   # (clears CUDA_VISIBLE_DEVICES)
+    if visible is not None:
         monkeypatch.setenv("CUDA_VISIBLE_DEVICES", visible)
-    _fake_run(monkeypatch, "A\nB\nC\n")
     assert machine._gpu_name(device) == expected
 
 
@@ -722,11 +721,12 @@ def test_the_driver_logs_a_run_whose_memory_was_not_measured(tmp_path):
     lines: list[str] = []
     executor = LocalExecutor(1)
     try:
-        run_benchmark([spec], executor, tmp_path / "r.jsonl", RunnerConfig(str(tmp_path / "runs")), ["x"],
+        run_benchmark([spec, spec], executor, tmp_path / "r.jsonl", RunnerConfig(str(tmp_path / "runs")), ["x"],
                       commit="c", log=lines.append, run_fn=lambda s, c: outcome)
     finally:
         executor.shutdown()
     assert any(line.endswith("PSNR 20.00  1 s  memory not measured") for line in lines), lines
+    assert lines[0] == "1 runs: 0 already finished, 1 to run"   # the spec given twice counts once (was "2 runs")
 
 
 def test_report_and_plot_name_a_finished_line_lacking_a_field_they_read(tmp_path, capsys):
@@ -757,6 +757,10 @@ def test_report_names_the_file_and_run_of_an_unknown_protocol(tmp_path, capsys):
     line = _error_line(capsys)
     assert line.startswith(f"senerf-bench: error: {results}: protocol: unknown protocol 'p'; choose from ")
     assert line.endswith(" (run k7)")
+    # a failed run's line is not reported on, whatever its protocol: the report of the finished one goes on
+    results.write_text(_full_line() + json.dumps({"run_key": "k8", "status": "failed", "error": "x",
+                                                  "protocol": "p"}) + "\n")
+    assert main(["report", str(results)]) == 0
 
 
 def test_a_grid_with_duplicates_counts_each_run_once(blender_scene, tmp_path, capsys):

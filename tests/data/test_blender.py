@@ -121,8 +121,9 @@ def test_ngp_nerfstudio_split_lists(tmp_path, writers):
     ({"train_filenames": ["images/f_0.png"], "test_filenames": ["f_1.png"]}, "test_filenames",
      "none of its 1 names is the file_path of a frame"),
     ({"train_filenames": ["img/f_0.png", "img/f_2.png"]}, "train_filenames", "none of its 2 names"),
-    # given other split lists, a missing training list left an empty train split, refused later by senerf-fit
-    # as a --protocol / --views problem (so before 2026-11-23); nerfstudio refuses it too
+    # given other split lists, a missing training list left an empty train split: senerf-fit's default and
+    # spread protocols then refused it as a --protocol / --views problem, and llff trained on the images of the
+    # other lists (so before 2026-11-23); nerfstudio refuses such a file
     ({"test_filenames": ["images/f_1.png"], "val_filenames": []}, "train_filenames",
      "missing beside val_filenames, test_filenames: no frame to train on"),
 ])

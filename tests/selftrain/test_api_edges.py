@@ -52,7 +52,13 @@ INF = float("inf")
     (dict(iterations=True), "iterations: must be an integer >= 0, got True"),
     (dict(n_pseudo_per_input=0), "n_pseudo_per_input: must be an integer >= 1, got 0"),
     (dict(n_pseudo_per_input=3.0), "n_pseudo_per_input: must be an integer >= 1, got 3.0"),
-    (dict(seed=1.5), "seed: must be an integer, got 1.5"),
+    (dict(seed=1.5), "seed: must be an integer >= 0, got 1.5"),
+    (dict(seed=-1), "seed: must be an integer >= 0, got -1"),   # np.random.default_rng refused it after the teacher
+    (dict(fixed_tau="0.5"), "fixed_tau: must be in [-1, 1], got '0.5'"),   # a TypeError traceback before
+    (dict(alpha0=None), "alpha0: must be in [0, 1], got None"),
+    (dict(beta=True), "beta: must be a finite number > 0, got True"),
+    (dict(alpha_step=True), "alpha_step: must be a finite number >= 0, got True"),
+    (dict(batch_empty=None), "batch_empty: must be an integer >= 0, got None"),   # checked before its use below
     (dict(alpha0=-0.01), "alpha0: must be in [0, 1], got -0.01"),
     (dict(alpha0=1.01), "alpha0: must be in [0, 1], got 1.01"),
     (dict(alpha_step=-0.01), "alpha_step: must be a finite number >= 0, got -0.01"),
@@ -91,6 +97,17 @@ def test_selftrain_config_accepts_each_boundary_value(kwargs):
     # Catches: an off-by-one comparison (``< 1`` for ``<= 1``, ``<= 0`` for ``< 0``, ``< 2`` for ``< 1``) in a check.
     cfg = SelfTrainConfig(**kwargs)
     assert all(getattr(cfg, k) == v for k, v in kwargs.items())
+
+
+def test_distill_config_error_pickles_with_its_field():
+    # Catches: a two-argument exception whose args hold one string (pickle.loads re-calls __init__ with it and
+    # fails), so a worker process could not hand the error back.
+    import pickle
+
+    from senerf.selftrain.distill import DistillConfigError
+
+    err = pickle.loads(pickle.dumps(DistillConfigError("kernel_std", "must be > 0")))
+    assert (str(err), err.field, err.message) == ("kernel_std must be > 0", "kernel_std", "must be > 0")
 
 
 def test_selftrain_config_takes_numpy_integers_as_plain_ints():
@@ -139,6 +156,8 @@ def test_estimate_reliability_refuses_renders_of_other_cameras(n_known, n_pseudo
 @pytest.mark.parametrize("kwargs, message", [
     (dict(batch_reliable=0), "batch_reliable must be an integer >= 1, got 0"),
     (dict(batch_reliable=1.5), "batch_reliable must be an integer >= 1, got 1.5"),
+    (dict(batch_prior=True), "batch_prior must be an integer >= 1, got True"),
+    (dict(lambda_color=True), "lambda_color must be a finite number >= 0, got True"),
     (dict(batch_prior=0), "batch_prior must be an integer >= 1, got 0"),
     (dict(batch_empty=-1), "batch_empty must be an integer >= 0, got -1"),
     (dict(lambda_color=-1e-6), "lambda_color must be a finite number >= 0, got -1e-06"),
