@@ -248,6 +248,30 @@ def _check_model_fits(model, device: str = "cpu") -> None:
                              f"{gpu / 2**30:.0f} GiB", field="--resolution")
 
 
+def _check_step_fits(model, batch_rays: int) -> None:
+    """:class:`InputError` when one training step could not fit in this machine's memory even at a generous
+    estimate, refused before anything is written (a huge ``--hidden`` or ``--batch-rays`` otherwise failed in
+    torch's allocator, or under the kernel's OOM killer, after the folder was made or an old run removed).
+
+    K-Planes only (the NeRF field's MLP is fixed).  Counted: the MLP weights with gradients and Adam's moments
+    (4 x (hidden^2 + 64 hidden) float32) and, per step, every sample's activations and their gradients
+    (2 x batch_rays x n_samples x (3 hidden + planes' features) float32; the occupancy grid only lowers it).
+    Refused when one of them alone exceeds the machine's physical memory, so no run that fits is refused.
+    """
+    have = physical_memory_bytes()
+    if have is None or model.field != "kplanes":
+        return
+    weights = 4 * 4 * (model.hidden ** 2 + 64 * model.hidden)
+    if weights > have:
+        raise InputError(f"{model.hidden} needs {weights / 2**30:.1f} GiB for the MLPs and their optimiser state, "
+                         f"more than this machine's {have / 2**30:.0f} GiB", field="--hidden")
+    per_sample = 3 * model.hidden + model.n_features * len(model.multires)
+    step = 2 * 4 * batch_rays * model.n_samples * per_sample
+    if step > have:
+        raise InputError(f"{batch_rays} rays of {model.n_samples} samples need up to {step / 2**30:.1f} GiB a step, "
+                         f"more than this machine's {have / 2**30:.0f} GiB", field="--batch-rays")
+
+
 def _default_protocol(scene, fmt: str, views) -> str:
     """The protocol when ``--protocol`` is not given: ``views`` when views are given; for a Blender-style
     object scene with a test split (not COLMAP's), ``extreme`` when it is named in
@@ -533,6 +557,7 @@ def _run(args, argv) -> int:
             flag = ("--views" if args.views else "--n-views" if args.n_views else
                     "--protocol" if args.protocol else f"training views (protocol {protocol})")
             raise InputError(problem, file=scene_dir, field=flag)
+    _check_step_fits(model, train_cfg.batch_rays)   # after the features' check, which names the likelier cause
     out = args.out if args.out is not None else Path("runs") / f"{scene.name}-{protocol}"
     config = dict(scene_dir=str(scene_dir.resolve()), format=fmt, downscale=downscale, protocol=protocol,
                   views=args.views, n_views=args.n_views, preset=args.preset, train=config_to_dict(train_cfg),

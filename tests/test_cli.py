@@ -260,6 +260,10 @@ def test_an_out_that_cannot_be_created_is_refused_before_any_work(tiny_scene, tm
 @pytest.mark.parametrize("flags, needle", [
     (["--resolution", "1"], "argument --resolution: must be >= 2, got 1"),
     (["--resolution", "100000"], "--resolution: 100000 needs"),
+    # one step's MLP weights or activations beyond the machine's memory: a torch allocator traceback, or the
+    # kernel's OOM killer, after run.json was written (so before 2026-11-23)
+    (["--hidden", "100000"], "--hidden: 100000 needs 149.1 GiB for the MLPs and their optimiser state, more than"),
+    (["--batch-rays", "100000000"], "--batch-rays: 100000000 rays of 12 samples need up to "),
     (["--seed", "99999999999999999999"], "argument --seed: must be >= 0 and <= 9223372036854775807"),
     (["--downscale", "2"],
      "--downscale: the images are 8x8 at downscale 2; the evaluation (SSIM) needs at least 11x11"),
@@ -274,6 +278,25 @@ def test_bad_model_and_size_settings_are_refused_before_anything_is_written(tiny
     assert main([str(tiny_scene), "--out", str(out), *TINY, *flags]) == 2
     assert needle in _one_error_line(capsys)
     assert not out.exists()
+
+
+def test_a_step_that_cannot_fit_is_refused_before_an_overwrite_removes_the_old_run(tiny_scene, tmp_path, capsys,
+                                                                                  monkeypatch):
+    # Catches: --overwrite removing a finished run before a fit that then failed on a size knowable up front (so
+    # before 2026-11-23); and the step check's bound: on a machine of 1 GiB, 2 x 4 x 128 x 12 x (3 x 32 + 16 x 2)
+    # bytes = 1.5 MiB a step fit, 300000 rays (3.4 GiB) do not.
+    import senerf.cli as cli_mod
+
+    out = tmp_path / "o"
+    assert main([str(tiny_scene), "--out", str(out), *TINY]) == 0
+    before = sorted(p.name for p in out.iterdir())
+    monkeypatch.setattr(cli_mod, "physical_memory_bytes", lambda: 2**30)
+    assert main([str(tiny_scene), "--out", str(out), *TINY, "--seed", "3", "--overwrite", "--batch-rays",
+                 "300000"]) == 2
+    assert _one_error_line(capsys).startswith("senerf-fit: error: --batch-rays: 300000 rays of 12 samples need up "
+                                              "to 3.4 GiB a step, more than this machine's 1 GiB")
+    assert sorted(p.name for p in out.iterdir()) == before and (out / "metrics.json").is_file()
+    assert main([str(tiny_scene), "--out", str(out), *TINY]) == 0   # the default batch fits the same 1 GiB
 
 
 @pytest.mark.parametrize("flags, needle", [

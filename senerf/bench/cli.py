@@ -152,7 +152,12 @@ def _cmd_run(args: argparse.Namespace, argv: list[str]) -> int:
         specs = expand_specs([str(Path(s).resolve()) if Path(s).is_dir() else s for s in args.scenes],
                              args.protocols, args.methods, args.presets, args.seeds, args.iterations, args.device,
                              args.steps, check_scenes=check)
-    fit_command = tuple(shlex.split(args.fit_command)) if args.fit_command else None
+    try:
+        fit_command = None if args.fit_command is None else tuple(shlex.split(args.fit_command))
+    except ValueError as exc:   # an unclosed quote
+        raise InputError(f"cannot be split into words ({exc}): {args.fit_command!r}", field="--fit-command") from None
+    if fit_command == ():
+        raise InputError("is empty; leave it out to run senerf-fit", field="--fit-command")
     threads = args.threads
     if threads is None:   # one core per reserved CPU: concurrent fits must not oversubscribe a node
         threads = (max(1, int(args.cpus_per_run)) if args.ray_address

@@ -14,7 +14,7 @@ from pathlib import Path
 
 from senerf.errors import InputError
 
-from .protocols import count_train_views, get_method, native_size, parse_protocol, scene_kind
+from .protocols import EXTREME_VIEWS, count_train_views, get_method, native_size, parse_protocol, scene_kind
 
 __all__ = ["PRESETS", "RunSpec", "expand_specs"]
 
@@ -116,6 +116,10 @@ def expand_specs(scene_dirs: list[str], protocols: list[str], methods: list[str]
                 factor = None if size is None else proto.downscale_for(size)
             except InputError as exc:   # which scene's images
                 raise InputError(exc.problem, file=scene_dir, field=exc.field) from None
+            if proto.family == "synthetic-extreme3" and Path(scene_dir).name.lower() not in EXTREME_VIEWS:
+                raise InputError(f"{proto.name} uses the published Extreme views, known for "
+                                 f"{', '.join(sorted(EXTREME_VIEWS))}; {Path(scene_dir).name!r} is none of them",
+                                 file=scene_dir, field="protocol")
             if proto.family == "synthetic-random8" and n_train < proto.n_views:   # drawn from the train split
                 raise InputError(f"{proto.name} draws {proto.n_views} training views; the train split has "
                                  f"{n_train}", file=scene_dir, field="protocol")

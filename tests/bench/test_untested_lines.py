@@ -831,3 +831,29 @@ def test_a_resolution_of_other_digits_is_refused_not_crashed_on(name):
     with pytest.raises(InputError, match="resolution must be"):
         parse_protocol(name)
     assert parse_protocol("llff3@504x378").size == (378, 504)   # the accepted side
+
+
+def test_extreme_views_of_a_scene_without_them_are_refused_before_any_fit(blender_factory, tmp_path, capsys):
+    # Catches: a grid whose Extreme protocol the scene has no views for listed by --dry-run and run, every fit then
+    # failing with the reason only in its log (so before 2026-11-23); 'Lego' (any case) has them.
+    mine = blender_factory(tmp_path, name="my_capture", side=400)
+    args = ["run", "--scenes", str(mine), "--protocols", "synthetic-extreme3@100", "--methods", "baseline",
+            "--out", str(tmp_path / "b"), "--dry-run"]
+    assert main(args) == 2
+    line = _error_line(capsys)
+    assert line.startswith(f"senerf-bench: error: {mine}: --protocols: synthetic-extreme3@100 uses the published "
+                           "Extreme views, known for chair, drums, ") and line.endswith("'my_capture' is none of them")
+    lego = blender_factory(tmp_path, name="Lego", side=400)
+    assert main([*args[:2], str(lego), *args[3:]]) == 0
+
+
+@pytest.mark.parametrize("command, problem", [
+    ('x "', "cannot be split into words (No closing quotation): 'x \"'"),
+    ("", "is empty; leave it out to run senerf-fit"),
+    ("  ", "is empty; leave it out to run senerf-fit")])
+def test_a_fit_command_that_is_not_a_command_is_refused(blender_scene, tmp_path, capsys, command, problem):
+    # Catches: shlex's ValueError on an unclosed quote escaping as a traceback, and an empty command silently
+    # replaced by senerf-fit (so before 2026-11-23).
+    assert main(["run", "--scenes", str(blender_scene), "--protocols", "synthetic-extreme3@100", "--methods",
+                 "baseline", "--out", str(tmp_path / "b"), "--fit-command", command, "--dry-run"]) == 2
+    assert _error_line(capsys) == f"senerf-bench: error: --fit-command: {problem}"
