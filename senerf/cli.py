@@ -339,9 +339,15 @@ def _files_changed(old: dict, identity: dict) -> str:
 
 def _comparable(identity: dict) -> dict:
     """``identity`` with the self-training overrides that equal their defaults left out (an override given
-    explicitly at its default value, or recorded as None, names the same run as one not given), and without
-    the scene files' digests (:func:`_files_changed` compares those)."""
+    explicitly at its default value, or recorded as None, names the same run as one not given), ``n_views``
+    at its protocol's default as None (likewise), and without the scene files' digests (:func:`_files_changed`
+    compares those)."""
+    from senerf.data.fewshot import DEFAULT_N_VIEWS
+
     identity = {k: v for k, v in identity.items() if k != "scene_files"}
+    n_views, protocol = identity.get("n_views"), identity.get("protocol")
+    if n_views is not None and isinstance(protocol, str) and n_views == DEFAULT_N_VIEWS.get(protocol):
+        identity["n_views"] = None   # --n-views given at its protocol's default: the same run as without it
     defaults = {"empty_opacity": EMPTY_OPACITY_DEFAULT, "pseudo_range_deg": PSEUDO_RANGE_DEFAULT,
                 "pseudo_range_step_deg": PSEUDO_RANGE_STEP_DEFAULT, "n_pseudo_per_input": PSEUDO_VIEWS_DEFAULT,
                 "batch_empty": BATCH_EMPTY_DEFAULT, "student_grid": STUDENT_GRID_DEFAULT}

@@ -509,7 +509,7 @@ def write_frames(out: Path, frames: dict, record: dict, fps: float, overwrite: b
         (tmp / _MARKER).write_text(json.dumps(record, indent=1))
         (tmp / _PARTIAL).unlink()   # from here on path.json marks it (recover_interrupted)
         os.chmod(tmp, 0o755)
-        if out.exists():
+        if out.exists() and not _empty_folder(out):
             old = out.with_name(f".{out.name}.old-{os.getpid()}")
             try:
                 out.rename(old)
@@ -519,7 +519,7 @@ def write_frames(out: Path, frames: dict, record: dict, fps: float, overwrite: b
                     old.rename(out)
                 raise
             shutil.rmtree(old, ignore_errors=True)
-        else:
+        else:   # rename(2) replaces an empty folder in one step
             tmp.rename(out)
     except OSError as exc:   # a full disk, a folder that turned read-only: the earlier output (if any) stays
         raise InputError(f"cannot write there ({exc.strerror or exc})", file=out) from None
@@ -624,6 +624,11 @@ def _is_ours(folder: Path) -> bool:
         return False
 
 
+def _empty_folder(path: Path) -> bool:
+    """True for an empty folder that is not a symbolic link (a link is never replaced by a rename)."""
+    return path.is_dir() and not path.is_symlink() and not any(path.iterdir())
+
+
 def _check_out(out: Path, overwrite: bool) -> None:
     from senerf.atomic import output_folder
 
@@ -633,7 +638,7 @@ def _check_out(out: Path, overwrite: bool) -> None:
             warnings.warn(line, stacklevel=2)
     except OSError:   # an unreadable parent: the write below reports it
         pass
-    if not out.exists():
+    if not out.exists() or _empty_folder(out):   # an empty folder holds nothing to lose
         return
     if not overwrite:
         raise InputError("exists; use --overwrite (replaces an earlier senerf-render output) or another --out",

@@ -436,6 +436,19 @@ def test_a_default_given_explicitly_resumes_the_same_run(tiny_scene, tmp_path, m
     assert "different run (selftrain_flags.n_pseudo_per_input: absent in the folder, 9 now)" in _one_error_line(capsys)
 
 
+def test_n_views_given_at_its_protocols_default_resumes_the_same_run(tiny_scene, tmp_path, capsys):
+    # Before, `--n-views 3` with the spread protocol (whose default is 3) was "a different run (n_views: null
+    # in the folder, 3 now)" (so at 7c49076).
+    argv = [str(tiny_scene), "--out", str(tmp_path / "o"), "--protocol", "spread", *SMALL]
+    assert main(argv) == 0
+    assert main(argv + ["--n-views", "3"]) == 0
+    capsys.readouterr()
+    assert main(argv + ["--n-views", "2"]) == 2
+    assert "different run (n_views: null in the folder, 2 now)" in _one_error_line(capsys)
+    other = [str(tiny_scene), "--out", str(tmp_path / "p"), "--protocol", "spread", "--n-views", "3", *SMALL]
+    assert main(other) == 0 and main(other[:5] + other[7:]) == 0   # the other way round too
+
+
 def test_negative_views_get_the_range_message_and_a_file_is_not_missing(tiny_scene, tmp_path, capsys):
     # `--views -1,0` gave argparse's "expected one argument" (so at ed16e9a)
     assert main([str(tiny_scene), "--out", str(tmp_path / "o"), *SMALL, "--views", "-1,0"]) == 2

@@ -191,6 +191,24 @@ def test_folders_that_are_not_finished_runs_are_refused_by_name(runs, tmp_path, 
     assert not (moved / "render").exists() and not (broken / "render").exists()
 
 
+def test_an_empty_out_folder_is_written_into_with_or_without_overwrite(runs, tmp_path, capsys):
+    # Before, an empty folder made for the frames was refused ("exists; use --overwrite"), and with --overwrite
+    # as "not a senerf-render output" (so at 7c49076).
+    for i, extra in enumerate(([], ["--overwrite"])):
+        out = tmp_path / f"made{i}"
+        out.mkdir()
+        assert main([str(runs.base), "--out", str(out), "--frames", "2", "--quiet", *extra]) == 0
+        assert json.loads((out / "path.json").read_text())["senerf_render"] is not None
+        assert sorted(p.name for p in out.glob("rgb_*.png")) == ["rgb_000.png", "rgb_001.png"]
+    target = tmp_path / "target"
+    target.mkdir()
+    link = tmp_path / "link"
+    link.symlink_to(target)   # a link to an empty folder is not replaced by a rename: refused as before
+    assert main([str(runs.base), "--out", str(link), "--frames", "2", "--quiet"]) == 2
+    assert "exists; use --overwrite" in _error(capsys)
+    assert link.is_symlink() and not any(target.iterdir())
+
+
 def test_out_is_replaced_only_when_it_is_ours_and_never_half_written(runs, tmp_path, capsys, monkeypatch):
     out = tmp_path / "r"
     argv = [str(runs.base), "--out", str(out), "--quiet"]
@@ -477,6 +495,7 @@ def test_flag_and_out_problems_are_found_before_the_run_is_loaded(runs, tmp_path
     assert "--elevation: applies to --path orbit only" in _error(capsys)
     taken = tmp_path / "taken"
     taken.mkdir()
+    (taken / "notes.txt").write_text("x")   # an empty folder is written into (test below)
     assert main([str(empty), "--out", str(taken)]) == 2
     assert f"{taken}: exists; use --overwrite" in _error(capsys)
     afile = tmp_path / "afile"

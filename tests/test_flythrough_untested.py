@@ -211,5 +211,6 @@ def test_an_unreadable_parent_while_tidying_does_not_stop_the_out_check(tmp_path
     monkeypatch.setattr(fly, "recover_interrupted", unreadable)
     assert fly._check_out(tmp_path / "new", overwrite=False) is None
     (tmp_path / "old").mkdir()
+    (tmp_path / "old" / "frame.png").write_bytes(b"")   # an empty folder is no longer refused
     with pytest.raises(InputError, match="exists; use --overwrite"):   # the checks after it still run
         fly._check_out(tmp_path / "old", overwrite=False)

@@ -45,7 +45,8 @@ from ..errors import InputError
 from .llff import LLFF_HOLDOUT
 from .scene import Scene
 
-__all__ = ["fewshot_split", "spread_views", "PROTOCOLS", "EXTREME_VIEWS", "INFONERF4_VIEWS", "LLFF_HOLDOUT"]
+__all__ = ["fewshot_split", "spread_views", "PROTOCOLS", "EXTREME_VIEWS", "INFONERF4_VIEWS", "LLFF_HOLDOUT",
+           "DEFAULT_N_VIEWS"]
 
 #: NeRF Synthetic Extreme (3 views, indices into the train split), REFERENCE section 5.
 EXTREME_VIEWS = {
@@ -61,6 +62,8 @@ EXTREME_VIEWS = {
 #: InfoNeRF's NeRF Synthetic 4-view protocol (indices into the train split).
 INFONERF4_VIEWS = (26, 86, 2, 55)
 PROTOCOLS = ("extreme", "infonerf4", "random8", "spread", "llff", "views", "all")
+#: The number of training views of the protocols that take ``n_views``, when it is not given.
+DEFAULT_N_VIEWS = {"random8": 8, "spread": 3, "llff": 3}
 
 
 def _as_view_list(views, n: int, what: str, table: str | None = None) -> np.ndarray:
@@ -189,13 +192,13 @@ def fewshot_split(scene: Scene, protocol: str = "extreme", views=None, n_views=N
                                           table="the infonerf4 protocol's views")]
         return train, _test_split(scene, protocol)
     if protocol == "random8":
-        k = _n_views(n_views, 8, n_train, "train-split views", protocol)
+        k = _n_views(n_views, DEFAULT_N_VIEWS[protocol], n_train, "train-split views", protocol)
         rng = np.random.default_rng(seed)
         pick = rng.choice(n_train, size=k, replace=False)
         return train_split[np.asarray(pick, np.int64)], _test_split(scene, protocol)
     if protocol == "spread":
         test = _test_split(scene, protocol)
-        k = _n_views(n_views, 3, n_train, "train-split views", protocol)
+        k = _n_views(n_views, DEFAULT_N_VIEWS[protocol], n_train, "train-split views", protocol)
         return train_split[_evenly(n_train, k)], test
     if protocol == "all":
         if n_train == 0:
@@ -209,7 +212,7 @@ def fewshot_split(scene: Scene, protocol: str = "extreme", views=None, n_views=N
         rest = idx[idx % LLFF_HOLDOUT != 0]
         if rest.size == 0:
             raise InputError(f"scene {scene.name!r} has too few images ({n}) for the LLFF hold-out", field="--protocol")
-        k = _n_views(n_views, 3, int(rest.size), "non-held-out images", protocol)
+        k = _n_views(n_views, DEFAULT_N_VIEWS[protocol], int(rest.size), "non-held-out images", protocol)
         return rest[_evenly(int(rest.size), k)], test
 
     # protocol == "views"
