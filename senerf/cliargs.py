@@ -60,6 +60,18 @@ def int_flag(flag: str, allow_zero: bool = False, minimum: int | None = None, ma
     return argument_type(convert)
 
 
+def _bounds_text(minimum: float | None, positive: bool, maximum: float | None) -> str:
+    """`` > 0 and <= 3``: every bound given, for a message (empty when none)."""
+    bounds = []
+    if positive:
+        bounds.append("> 0")
+    if minimum is not None:
+        bounds.append(f">= {minimum:g}")
+    if maximum is not None:
+        bounds.append(f"<= {maximum:g}")
+    return " " + " and ".join(bounds) if bounds else ""
+
+
 def float_flag(flag: str, minimum: float | None = None, positive: bool = False, maximum: float | None = None):
     """A finite float, at least ``minimum`` / at most ``maximum`` when given, above 0 when ``positive``."""
     def convert(text: str) -> float:
@@ -69,10 +81,8 @@ def float_flag(flag: str, minimum: float | None = None, positive: bool = False, 
             raise InputError(f"expected a number, got {text!r}", field=flag) from None
         if (value != value or value in (float("inf"), float("-inf")) or (minimum is not None and value < minimum)
                 or (positive and value <= 0) or (maximum is not None and value > maximum)):
-            bound = " > 0" if positive else "" if minimum is None else f" >= {minimum:g}"
-            if maximum is not None:
-                bound += (" and" if bound else "") + f" <= {maximum:g}"
-            raise InputError(f"expected a finite number{bound}, got {text!r}", field=flag)
+            raise InputError(f"expected a finite number{_bounds_text(minimum, positive, maximum)}, got {text!r}",
+                             field=flag)
         return value
     return argument_type(convert)
 
