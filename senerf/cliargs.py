@@ -168,25 +168,35 @@ _USER_ERRNOS = frozenset({errno.EACCES, errno.EPERM, errno.ENAMETOOLONG, errno.E
 _FULL_ERRNOS = frozenset({errno.ENOSPC, errno.EDQUOT})
 
 
+def _chain(exc: BaseException | None):
+    """``exc`` and the exceptions behind it (each one's ``__cause__``, else its ``__context__``), once each."""
+    seen = set()
+    while exc is not None and id(exc) not in seen:
+        yield exc
+        seen.add(id(exc))
+        exc = exc.__cause__ or exc.__context__
+
+
 def _full_disk(exc: BaseException) -> OSError | None:
     """The full-disk OSError behind ``exc``, or None: torch.save, for one, reports a failed write as a
     RuntimeError raised while handling the ENOSPC OSError, so the whole chain is searched."""
-    seen = set()
-    while exc is not None and id(exc) not in seen:
-        if isinstance(exc, OSError) and exc.errno in _FULL_ERRNOS:
-            return exc
-        seen.add(id(exc))
-        exc = exc.__cause__ or exc.__context__
-    return None
+    return next((e for e in _chain(exc) if isinstance(e, OSError) and e.errno in _FULL_ERRNOS), None)
+
+
+def _interrupt_behind(exc: BaseException) -> bool:
+    """True when a KeyboardInterrupt is behind ``exc``: an error raised while an interrupt unwound (a cleanup
+    that imports a module the interrupt left half-imported, say) is the interrupt's, not a bug."""
+    return any(isinstance(e, KeyboardInterrupt) for e in _chain(exc))
 
 
 def run_command(prog: str, body, interrupted: str) -> int:
     """``body()``'s exit status, with every way out of a command mapped to one: 2 for bad input (one line
     ``<prog>: error: <message>``, no traceback), argparse's own status for ``--help`` / ``--version``, 130 when
-    interrupted (``interrupted`` says what to do next), 2 also for a full disk (one line, with ``interrupted``),
-    1 for an internal error (with the traceback).  Warnings raised meanwhile print as one
-    ``<prog>: warning: <message>`` line each, without source lines.  A SIGTERM (what batch schedulers send)
-    counts as an interrupt, so ``finally`` blocks run and temporary files go."""
+    interrupted (``interrupted`` says what to do next; also for an error raised while an interrupt unwound), 2
+    also for a full disk (one line, with ``interrupted``), 1 for an internal error (with the traceback).
+    Warnings raised meanwhile print as one ``<prog>: warning: <message>`` line each, without source lines.
+    A SIGTERM (what batch schedulers send) counts as an interrupt, so ``finally`` blocks run and temporary
+    files go."""
     def one_line(message, category, filename, lineno, file=None, line=None) -> None:
         print(f"{prog}: warning: {' '.join(str(message).split())}", file=sys.stderr if file is None else file)
 
@@ -208,6 +218,9 @@ def run_command(prog: str, body, interrupted: str) -> int:
         print(f"{prog}: interrupted ({interrupted})", file=sys.stderr)
         return 130
     except Exception as exc:
+        if _interrupt_behind(exc):
+            print(f"{prog}: interrupted ({interrupted})", file=sys.stderr)
+            return 130
         if isinstance(exc, OSError) and exc.errno in _USER_ERRNOS and exc.filename:
             # a file or folder of the user's we may not read or search (or name): theirs to fix, one line
             print(f"{prog}: error: {exc.filename}: {exc.strerror or exc}", file=sys.stderr)

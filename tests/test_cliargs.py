@@ -102,6 +102,19 @@ def test_run_command_maps_every_way_out_to_its_exit_status(capsys):
             raise RuntimeError("[enforce fail at inline_container.cc:672] . unexpected pos 3010624 vs 3010536")
     assert run_command("prog", torch_save_on_a_full_disk, "rerun it") == 2
     assert capsys.readouterr().err == "prog: error: No space left on device; free some space (rerun it)\n"
+
+    def interrupted_import():   # a Ctrl-C inside a lazy import, then a cleanup that imports it again (at 7c49076 a
+        try:                    # fuzzed fit exited 1 with such an ImportError's traceback)
+            raise KeyboardInterrupt
+        finally:
+            raise ImportError("cannot import name 'linalg' from partially initialized module 'numpy'")
+    assert run_command("prog", interrupted_import, "rerun it") == 130
+    assert capsys.readouterr().err == "prog: interrupted (rerun it)\n"
+    looped = RuntimeError("a")   # a chain that loops ends the search
+    looped.__context__ = ValueError("b")
+    looped.__context__.__context__ = looped
+    assert run_command("prog", raising(looped), "x") == 1
+    assert "RuntimeError: a" in capsys.readouterr().err
     caused = RuntimeError("write failed")          # an explicit cause (raise ... from), with no context
     caused.__cause__ = OSError(errno.ENOSPC, "No space left on device", "/o/x.png")
     assert run_command("prog", raising(caused), "rerun it") == 2
