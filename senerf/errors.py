@@ -1,16 +1,21 @@
-"""The one exception type for bad user input (no torch import here).
+"""The one exception type for bad user input, and what counts as a number in it (no torch or NumPy import here).
 
 Every loader and command raises :class:`InputError` for problems in what a user
 gave us: a missing file, a malformed field, a non-rigid pose, an out-of-range
 view index.  Its message is one line that names the file and the field, so the
 command line can print it and exit with status 2 without a traceback.
+
+:func:`is_number` is the one test of a real-valued setting every config applies (``TrainConfig``,
+``ModelConfig``, ``DistillConfig``, ``SelfTrainConfig``): a finite real, Python or NumPy, and not a bool.
 """
 
 from __future__ import annotations
 
+import math
+import numbers
 from pathlib import Path
 
-__all__ = ["InputError"]
+__all__ = ["InputError", "is_number"]
 
 
 class InputError(ValueError):
@@ -32,3 +37,20 @@ class InputError(ValueError):
         self.field = field
         parts = [p for p in (self.file, self.field, self.problem) if p]
         super().__init__(": ".join(parts))
+
+
+def is_number(value) -> bool:
+    """A finite real number (Python or NumPy), not a bool: what a weight, a range or a threshold may be.
+
+    Example:
+        >>> [is_number(v) for v in (1, 0.5, -2.0)]
+        [True, True, True]
+        >>> [is_number(v) for v in (True, "1", float("nan"), float("inf"), None, 1j, 10 ** 400)]
+        [False, False, False, False, False, False, False]
+    """
+    if not isinstance(value, numbers.Real) or isinstance(value, bool):
+        return False
+    try:
+        return math.isfinite(value)
+    except OverflowError:   # an int beyond float's range: no setting can use it
+        return False

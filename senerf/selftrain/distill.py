@@ -28,13 +28,13 @@ For 'unified' the neighbour weights are ``max(s_xy - s_ij, 0) g(x, y)`` as in th
 
 from __future__ import annotations
 
-import math
 import numbers
 from dataclasses import dataclass
 
 import numpy as np
 import torch
 
+from ..errors import is_number   # re-exported: this module named it first (see __all__)
 from ..fields import render_rays, volume_render
 
 __all__ = [
@@ -159,11 +159,6 @@ class DistillConfigError(ValueError):
 
     def __str__(self) -> str:
         return f"{self.field} {self.message}"
-
-
-def is_number(value) -> bool:
-    """A finite real number (Python or NumPy), not a bool: what a weight, a range or a threshold may be."""
-    return isinstance(value, numbers.Real) and not isinstance(value, bool) and math.isfinite(value)
 
 
 def _integer(cfg, name: str, least: int) -> None:

@@ -17,7 +17,7 @@ from typing import Any, Callable, Mapping
 
 import numpy as np
 
-from senerf.errors import InputError
+from senerf.errors import InputError, is_number
 
 __all__ = [
     "TrainConfig",
@@ -80,6 +80,11 @@ class TrainConfig:
             checkpoint path is given).
         seed: seed of the training generator (ray batches, sample jitter, backgrounds).
         device: ``"cpu"`` or ``"cuda"`` (``"cuda:N"``).
+
+    Raises:
+        InputError: ``field`` names the setting: the step counts, ``batch_rays`` and ``seed`` integers (not
+            bools; NumPy integers too), ``lr``, ``lr_final_factor`` and ``tv_weight`` finite numbers in range
+            (:func:`senerf.errors.is_number`: not bools, not strings; NumPy scalars too, kept as given).
     """
 
     steps: int = 1000
@@ -101,12 +106,9 @@ class TrainConfig:
         _positive_int(self.occupancy_every, "occupancy_every", allow_zero=True)
         _positive_int(self.occupancy_warmup, "occupancy_warmup", allow_zero=True)
         _positive_int(self.checkpoint_every, "checkpoint_every", allow_zero=True)
-        if not (math.isfinite(self.lr) and self.lr > 0):
-            raise InputError(f"must be a positive number, got {self.lr!r}", field="lr")
-        if not (0.0 <= self.lr_final_factor <= 1.0):
-            raise InputError(f"must be in [0, 1], got {self.lr_final_factor!r}", field="lr_final_factor")
-        if not (math.isfinite(self.tv_weight) and self.tv_weight >= 0):
-            raise InputError(f"must be >= 0, got {self.tv_weight!r}", field="tv_weight")
+        _real(self.lr, "lr", lambda v: v > 0, "must be a positive number")
+        _real(self.lr_final_factor, "lr_final_factor", lambda v: 0 <= v <= 1, "must be in [0, 1]")
+        _real(self.tv_weight, "tv_weight", lambda v: v >= 0, "must be >= 0")
         if not isinstance(self.seed, numbers.Integral) or isinstance(self.seed, bool):
             raise InputError(f"must be an integer, got {self.seed!r}", field="seed")
         object.__setattr__(self, "seed", int(self.seed))   # a NumPy integer as a plain int (JSON, checkpoints)
@@ -145,6 +147,13 @@ class ModelConfig:
         occupancy_decay: the grid's running maximum forgets by this factor per update.
         train_background: ``"random"`` (per batch), ``"white"`` or ``"black"``.
         eval_background: ``"white"`` or ``"black"``.
+
+    Raises:
+        InputError: ``field`` names the setting: ``aabb``'s six values, ``ndc_near``, ``near``, ``far``,
+            ``density_shift``, ``occupancy_threshold`` and ``occupancy_decay`` finite numbers in range
+            (:func:`senerf.errors.is_number`: not bools, not strings; NumPy scalars too, kept as given);
+            ``resolution``, ``n_features``, ``n_samples``, ``hidden``, ``occupancy_resolution`` and each of
+            ``multires`` integers (not bools; NumPy integers too), in range.
     """
 
     field: str = "kplanes"
@@ -170,29 +179,37 @@ class ModelConfig:
         if self.field not in _FIELDS:
             raise InputError(f"must be one of {', '.join(_FIELDS)}, got {self.field!r}", field="field")
         try:
+            values = [v for row in self.aabb for v in row]   # bools and numeric strings would convert below
             box = np.asarray(self.aabb, dtype=np.float64)
-        except (TypeError, ValueError):   # a string, a dict, ragged rows: not numbers
-            box = np.full((0,), np.nan)
-        if box.shape != (2, 3) or not np.all(np.isfinite(box)) or not np.all(box[1] > box[0]):
+        except (TypeError, ValueError, OverflowError):   # a string, a dict, ragged rows, 10 ** 400: not numbers
+            values, box = [], np.full((0,), np.nan)
+        if (box.shape != (2, 3) or not all(is_number(v) for v in values) or not np.all(np.isfinite(box))
+                or not np.all(box[1] > box[0])):
             raise InputError(f"must be ((xmin,ymin,zmin),(xmax,ymax,zmax)) with max > min, got {self.aabb!r}",
                              field="aabb")
         object.__setattr__(self, "aabb", tuple(tuple(float(v) for v in row) for row in box))
-        object.__setattr__(self, "multires", tuple(int(m) for m in self.multires))
         if (self.near is None) != (self.far is None):
             raise InputError("give both near and far, or neither", field="near/far")
-        if self.near is not None and not (0 <= self.near < self.far):
-            raise InputError(f"need 0 <= near < far, got {self.near!r}, {self.far!r}", field="near/far")
-        if not (math.isfinite(self.ndc_near) and self.ndc_near > 0):
-            raise InputError(f"must be positive, got {self.ndc_near!r}", field="ndc_near")
+        if self.near is not None:
+            _real(self.near, "near")
+            _real(self.far, "far")
+            if not (0 <= self.near < self.far):
+                raise InputError(f"need 0 <= near < far, got {self.near!r}, {self.far!r}", field="near/far")
+        _real(self.ndc_near, "ndc_near", lambda v: v > 0, "must be positive")
+        _real(self.density_shift, "density_shift")
         for name in ("resolution", "n_features", "n_samples", "hidden"):
             _positive_int(getattr(self, name), name)
         _positive_int(self.occupancy_resolution, "occupancy_resolution", allow_zero=True)
-        if not (math.isfinite(self.occupancy_threshold) and self.occupancy_threshold >= 0):
-            raise InputError(f"must be >= 0, got {self.occupancy_threshold!r}", field="occupancy_threshold")
-        if not (0.0 <= self.occupancy_decay <= 1.0):
-            raise InputError(f"must be in [0, 1], got {self.occupancy_decay!r}", field="occupancy_decay")
-        if not self.multires or any(m < 1 for m in self.multires):
+        _real(self.occupancy_threshold, "occupancy_threshold", lambda v: v >= 0, "must be >= 0")
+        _real(self.occupancy_decay, "occupancy_decay", lambda v: 0 <= v <= 1, "must be in [0, 1]")
+        try:
+            multires = tuple(self.multires)
+        except TypeError:   # a number, None: not a sequence
+            multires = ()
+        if not multires or not all(isinstance(m, numbers.Integral) and not isinstance(m, bool) and m >= 1
+                                   for m in multires):
             raise InputError(f"must be positive integers, got {self.multires!r}", field="multires")
+        object.__setattr__(self, "multires", tuple(int(m) for m in multires))
         if self.train_background not in _BACKGROUNDS:
             raise InputError(f"must be one of {', '.join(_BACKGROUNDS)}, got {self.train_background!r}",
                              field="train_background")
@@ -227,6 +244,17 @@ class ModelConfig:
         with and what the rays are clipped to."""
         box = np.asarray(self.aabb, dtype=np.float64) - np.asarray(self.frame_origin)
         return tuple(tuple(float(v) for v in row) for row in box)
+
+
+def _real(value: Any, name: str, ok: Callable[[Any], bool] | None = None,
+          wanted: str = "must be a finite number") -> None:
+    """:class:`InputError` naming ``name`` unless ``value`` is a number (:func:`senerf.errors.is_number`:
+    finite, not a bool) for which ``ok`` holds: "must be a number" for what is none (a bool, a string,
+    None), ``wanted`` for a NaN, an infinity or a number out of range."""
+    if is_number(value) and (ok is None or ok(value)):
+        return
+    number = isinstance(value, numbers.Real) and not isinstance(value, bool)
+    raise InputError(f"{wanted if number else 'must be a number'}, got {value!r}", field=name)
 
 
 def _positive_int(value: Any, name: str, allow_zero: bool = False) -> None:
