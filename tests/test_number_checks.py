@@ -146,3 +146,15 @@ def test_aabb_takes_numpy_scalars_and_arrays():
     assert ModelConfig(aabb=np.array([[-1, -2, -3], [1, 2, 3]], dtype=np.float32)).aabb == ((-1, -2, -3), (1, 2, 3))
     with pytest.raises(InputError, match="^aabb: "):
         ModelConfig(aabb=np.array([[False, False, False], [True, True, True]]))
+
+
+@pytest.mark.parametrize("name", ["ndc", "view_dependent"])
+def test_model_config_switches_are_bools(name):
+    # Catches: a string such as "no" or a 0/1 taken as a switch ("no" counted as true at 7c49076); a NumPy bool
+    # refused, or kept as a NumPy bool (json.dumps of run.json refuses those).
+    for bad in ("no", "False", 0, 1, None, 1.0):
+        with pytest.raises(InputError, match=f"^{name}: must be True or False, got "):
+            ModelConfig(**{name: bad})
+    for good, want in ((True, True), (False, False), (np.True_, True), (np.False_, False)):
+        value = getattr(ModelConfig(**{name: good}), name)
+        assert value is want

@@ -153,7 +153,8 @@ class ModelConfig:
             ``density_shift``, ``occupancy_threshold`` and ``occupancy_decay`` finite numbers in range
             (:func:`senerf.errors.is_number`: not bools, not strings; NumPy scalars too, kept as given);
             ``resolution``, ``n_features``, ``n_samples``, ``hidden``, ``occupancy_resolution`` and each of
-            ``multires`` integers (not bools; NumPy integers too), in range.
+            ``multires`` integers (not bools; NumPy integers too), in range; ``ndc`` and ``view_dependent``
+            bools (NumPy's too, kept as plain bools).
     """
 
     field: str = "kplanes"
@@ -178,6 +179,10 @@ class ModelConfig:
     def __post_init__(self) -> None:
         if self.field not in _FIELDS:
             raise InputError(f"must be one of {', '.join(_FIELDS)}, got {self.field!r}", field="field")
+        for name in ("ndc", "view_dependent"):   # a string such as "no" would count as true
+            if not isinstance(getattr(self, name), (bool, np.bool_)):
+                raise InputError(f"must be True or False, got {getattr(self, name)!r}", field=name)
+            object.__setattr__(self, name, bool(getattr(self, name)))
         try:
             values = [v for row in self.aabb for v in row]   # bools and numeric strings would convert below
             box = np.asarray(self.aabb, dtype=np.float64)
