@@ -664,6 +664,11 @@ def _remove_iteration_records(ckpt_dir: Path, k: int) -> None:
     shutil.rmtree(ckpt_dir / f"iter_{k}_labels", ignore_errors=True)
 
 
+def _started(out: Path, ckpt_dir: Path, k: int) -> bool:
+    """True when iteration ``k`` left work behind (its folder, its training checkpoint or labelling record)."""
+    return any(p.exists() for p in (out / f"iter_{k}", ckpt_dir / f"iter_{k}_train.pt", ckpt_dir / f"iter_{k}_labels"))
+
+
 def run_selftraining(scene, train_idx, test_idx, model, train_cfg, cfg: SelfTrainConfig, out_dir,
                      student_cfg=None, command: list | None = None, extra_config: dict | None = None,
                      progress: bool = True, echo: Callable[[str], None] = print,
@@ -732,6 +737,9 @@ def run_selftraining(scene, train_idx, test_idx, model, train_cfg, cfg: SelfTrai
             _remove_iteration_records(ckpt_dir, k)
         if done >= cfg.iterations:   # finished (perhaps beyond what is asked now): reported as it is, untouched
             echo(f"selftrain: {out} holds iterations 0-{done} already ({cfg.iterations} asked for); nothing to train")
+            if _started(out, ckpt_dir, done + 1):
+                echo(f"selftrain: iteration {done + 1} was started and is kept; --iterations {done + 1} goes on "
+                     "with it")
             stored = finished_metrics(out, done)   # None: killed before its metrics.json, rebuilt below
             if stored is not None:
                 return stored

@@ -147,6 +147,13 @@ def test_tiny_end_to_end_with_resume(tiny_scene, tmp_path, monkeypatch):
                                     echo=lines.append)
     assert calls == []
     assert lines == [f"selftrain: {out} holds iterations 0-1 already (1 asked for); nothing to train"]
+    for left in (out / "iter_2", out / "checkpoints" / "iter_2_labels"):   # what a run killed in iteration 2 left
+        left.mkdir()                                                     # is named (at 7c49076, without a word)
+        lines.clear()
+        controller_mod.run_selftraining(scene, train_idx, test_idx, model, tcfg, cfg, out, progress=False,
+                                        echo=lines.append)
+        assert lines[1:] == ["selftrain: iteration 2 was started and is kept; --iterations 2 goes on with it"]
+        left.rmdir()
     lines.clear()
     written = (out / "metrics.json").read_bytes()
     fewer = controller_mod.run_selftraining(scene, train_idx, test_idx, model, tcfg, base, out, progress=False,
