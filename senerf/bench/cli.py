@@ -311,9 +311,9 @@ def _cmd_report(args: argparse.Namespace, argv: list[str]) -> int:
     except InputError as exc:   # a line of the results file
         raise (InputError(exc.problem, file=args.results, field=exc.field) if exc.file is None else exc) from None
     for name in args.masks:
-        text = _read_text(Path(name))   # its own InputError ("cannot read"), not taken for bad JSON below
+        raw = _read_text(Path(name))   # its own InputError ("cannot read"), not taken for bad JSON below
         try:
-            doc = json.loads(text)
+            doc = json.loads(raw)
         except ValueError as exc:
             raise InputError(f"not JSON ({exc})", file=name) from None
         try:

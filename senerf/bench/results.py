@@ -5,7 +5,8 @@ driver process writes (workers return their outcome), and an advisory ``fcntl`` 
 sharing one file from interleaving.  A run is "finished" when the file holds an ``"ok"`` line with its key;
 failed runs leave one ``"failed"`` line and are retried by the next invocation.
 
-Line schema (``schema`` = 1), one line per self-training iteration of an ok run:
+Line schema (``schema`` = 1; a reader refuses a line of a schema it does not know, see :data:`READABLE_SCHEMAS`),
+one line per self-training iteration of an ok run:
 
 ==================  ===========================================================================
 ``run_key``         :meth:`RunSpec.key`; ``attempt``: random hex id shared by one run's lines
@@ -36,12 +37,15 @@ import os
 import uuid
 from pathlib import Path
 
+from ..errors import InputError
 from .specs import RunSpec
 
-__all__ = ["SCHEMA_VERSION", "REQUIRED_OK_FIELDS", "result_lines", "validate_line", "append_lines",
-           "load_results", "finished_keys", "latest_ok_lines", "final_ok_lines"]
+__all__ = ["SCHEMA_VERSION", "READABLE_SCHEMAS", "REQUIRED_OK_FIELDS", "result_lines", "validate_line",
+           "append_lines", "load_results", "finished_keys", "latest_ok_lines", "final_ok_lines"]
 
 SCHEMA_VERSION = 1
+#: ``schema`` numbers this version reads (a line without one is read as schema 1); a newer one is refused.
+READABLE_SCHEMAS = (1,)
 
 #: field -> accepted types on an ``"ok"`` line.
 REQUIRED_OK_FIELDS: dict[str, tuple[type, ...]] = {
@@ -97,8 +101,8 @@ def _metric(value) -> float | str:
 
 
 def validate_line(line: dict) -> None:
-    """Raise ``ValueError`` naming the first field of an ``"ok"`` line that is missing or mistyped
-    (:func:`_mistyped`, which :func:`load_results` applies to the fields a line has)."""
+    """Raise ``ValueError`` naming the first field of an ``"ok"`` line that is missing, mistyped or impossible
+    (:func:`_mistyped` and :func:`_impossible`, which :func:`load_results` applies to the fields a line has)."""
     if line.get("status") != "ok":
         for name in ("run_key", "status", "error"):
             if not isinstance(line.get(name), str):
@@ -108,6 +112,9 @@ def validate_line(line: dict) -> None:
         if name not in line:
             raise ValueError(f"{name}: missing")
     problem = _mistyped(line)
+    if problem is None:
+        found = _impossible(line)
+        problem = None if found is None else f"{found[0]}: {found[1]}"
     if problem is not None:
         raise ValueError(problem)
 
@@ -139,6 +146,53 @@ def _mistyped(line: dict) -> str | None:
     for name in ("resolution", "views", "test_views"):
         if line.get(name) is not None and not _int_list(line[name]):
             return f"{name}: expected a list of integers"
+    return None
+
+
+#: Non-negative quantities of an "ok" line (seconds, MiB): a negative, NaN or infinite one was not measured.
+_AMOUNTS = ("seconds", "seconds_cumulative", "run_seconds", "peak_memory_mib")
+#: Largest finite PSNR of images in [0, 1] (renders are clipped), dB: 10 log10(1 / MSE) with the MSE at the
+#: smallest positive float64, rounded up.  An exact render's PSNR is infinite, not large (:func:`_mistyped`).
+_PSNR_MAX_DB = math.ceil(-10.0 * math.log10(math.ulp(0.0)))
+#: How far beyond [-1, 1] a mean SSIM may round.
+_SSIM_SLACK = 1e-9
+
+
+def _unreadable_schema(line: dict) -> str | None:
+    """What is wrong with ``line``'s ``schema`` number when this version cannot read it, else None (a line without
+    a number, or with a string, is left to :func:`_mistyped`)."""
+    schema = line.get("schema")
+    if not isinstance(schema, int) or isinstance(schema, bool) or schema in READABLE_SCHEMAS:
+        return None
+    known = ", ".join(str(v) for v in READABLE_SCHEMAS)
+    if schema > max(READABLE_SCHEMAS):
+        return f"{schema} is newer than this version of senerf reads (schema {known}); upgrade senerf to read it"
+    return f"{schema} is not a schema this version of senerf reads (schema {known})"
+
+
+def _impossible(line: dict) -> tuple[str, str] | None:
+    """``(field, problem)`` of the first value of a well-typed ``"ok"`` line (:func:`_mistyped` is None) that no
+    run can have: a negative ``iteration`` or ``iterations``, an ``iteration`` beyond the run's ``iterations``, a
+    negative or non-finite time or peak memory, a PSNR outside [0, 3234] dB or an SSIM outside [-1, 1]; None
+    when there is none, or for a failed line."""
+    if line.get("status") != "ok":
+        return None
+    for name, what in (("iterations", "the run's self-training rounds, 0 for a baseline"),
+                       ("iteration", "0 is the teacher or baseline, 1.. the students")):
+        if isinstance(line.get(name), int) and line[name] < 0:
+            return name, f"{line[name]} is negative ({what})"
+    if isinstance(line.get("iterations"), int) and isinstance(line.get("iteration"), int) \
+            and line["iteration"] > line["iterations"]:
+        return "iteration", f"{line['iteration']} is beyond the run's iterations ({line['iterations']})"
+    for name in _AMOUNTS:
+        value = line.get(name)
+        if isinstance(value, (int, float)) and not isinstance(value, bool) and not 0 <= value < math.inf:
+            return name, f"{value!r} is not a finite number >= 0"
+    if isinstance(line.get("psnr"), (int, float)) and not 0 <= line["psnr"] <= _PSNR_MAX_DB:
+        return "psnr", (f"{line['psnr']!r} dB is not the PSNR of images in [0, 1] (a finite one is 0 to "
+                        f"{_PSNR_MAX_DB} dB)")
+    if isinstance(line.get("ssim"), (int, float)) and not -1 - _SSIM_SLACK <= line["ssim"] <= 1 + _SSIM_SLACK:
+        return "ssim", f"{line['ssim']!r} is outside [-1, 1]"
     return None
 
 
@@ -177,13 +231,18 @@ def load_results(path: str | Path) -> tuple[list[dict], int]:
     field of the wrong type: a string seed, a non-finite PSNR; see :func:`validate_line`).
 
     A missing file is an empty result (a fresh benchmark).
+
+    Raises:
+        InputError: a line of a schema this version does not read (:data:`READABLE_SCHEMAS`), or an "ok" line
+            with a value no run can have (a negative iteration, a negative or non-finite time, a PSNR of 1e308
+            dB; see :func:`_impossible`); one line naming the file, the field, the line number and the run.
     """
-    path = Path(path)
+    name, path = path, Path(path)   # errors name the file as given
     if not path.exists():
         return [], 0
     records, bad = [], 0
     with open(path, "rb") as f:
-        for raw in f:
+        for number, raw in enumerate(f, start=1):
             raw = raw.strip()
             if not raw:
                 continue
@@ -192,14 +251,26 @@ def load_results(path: str | Path) -> tuple[list[dict], int]:
             except (UnicodeDecodeError, json.JSONDecodeError):
                 bad += 1
                 continue
+            unreadable = _unreadable_schema(rec) if isinstance(rec, dict) else None
+            if unreadable is not None:   # before the shape checks: a newer schema may have renamed any field
+                raise _line_error(name, number, rec, "schema", unreadable)
             if isinstance(rec, dict) and "run_key" in rec and (rec.get("status") != "ok" or _OK_FIELDS <= rec.keys()):
                 if _mistyped(rec) is not None:   # would crash the tables, or count a run as done on a made-up figure
                     bad += 1
                     continue
+                impossible = _impossible(rec)
+                if impossible is not None:   # a made-up figure: refused, not skipped, so no table silently lacks it
+                    raise _line_error(name, number, rec, *impossible)
                 records.append(rec)
             else:
                 bad += 1
     return records, bad
+
+
+def _line_error(path: str | Path, number: int, line: dict, field: str, problem: str) -> InputError:
+    """``"<path>: <field>: <problem> (line <number>, run <run_key>)"`` (no run where the line names none)."""
+    run = f", run {line['run_key']}" if isinstance(line.get("run_key"), str) else ""
+    return InputError(f"{problem} (line {number}{run})", file=path, field=field)
 
 
 def finished_keys(records: list[dict]) -> set[str]:

@@ -83,6 +83,9 @@ def test_run_resume_summarize_report_plot(blender_scene, fake_fit_command, tmp_p
     text = report_path.read_text()
     assert "| vgg19-norm | adaptive | 0.948 | 92.65 % | 16.50 % | 6.72 % | 14.90 % | 83.70 % |" in text
     assert "| vgg19-norm | unified | soft |" in text and "3.9-11.9 degrees" in text and "commit abc" in text
+    # the results' tables stay, and the masks file is tabulated, not copied (at 8939e23-7c49076 the masks JSON
+    # replaced the whole report)
+    assert "22.05 ± 0.07" in text and '"rows"' not in text and text.index("22.05") < text.index("vgg19-norm")
     (tmp_path / "bad.json").write_text("{")
     assert main(["report", str(out / "results.jsonl"), "--masks", str(tmp_path / "bad.json")]) == 2
     (tmp_path / "other.json").write_text("{}")
