@@ -17,7 +17,7 @@ from typing import Callable
 from .execute import RunnerConfig, execute_run
 from .executors import Executor
 from .machine import git_commit
-from .results import append_lines, finished_keys, load_results, result_lines
+from .results import _impossible, append_lines, finished_keys, load_results, result_lines
 from .specs import RunSpec
 
 __all__ = ["BenchOutcome", "pending_specs", "dry_run_lines", "run_benchmark"]
@@ -80,7 +80,7 @@ def run_benchmark(specs: list[RunSpec], executor: Executor, results_path: str | 
     ok = failed = 0
     for fut in cf.as_completed(futures):
         spec = futures[fut]
-        outcome = _outcome_of(fut, spec)
+        outcome = _refuse_impossible(_outcome_of(fut, spec), spec, commit, bench_command)
         append_lines(results_path, result_lines(spec, outcome, commit, bench_command))
         if outcome["status"] == "ok":
             ok += 1
@@ -92,6 +92,20 @@ def run_benchmark(specs: list[RunSpec], executor: Executor, results_path: str | 
             failed += 1
             log(f"FAILED  {spec.key()}  {outcome['error']}")
     return BenchOutcome(skipped, ok, failed)
+
+
+def _refuse_impossible(outcome: dict, spec: RunSpec, commit: str, bench_command: list[str]) -> dict:
+    """``outcome``, or a failed one when its lines would hold a value no run can have (a fit command's negative
+    seconds, say): the results file would be refused by every later command, so the run fails and is retried."""
+    if outcome["status"] != "ok":
+        return outcome
+    for line in result_lines(spec, outcome, commit, bench_command):
+        found = _impossible(line)
+        if found is not None:
+            error = f"metrics.json: iteration {line['iteration']}: {found[0]}: {found[1]}"
+            return {**outcome, "status": "failed", "error": error, "returncode": outcome.get("returncode"),
+                    "log_tail": outcome.get("log_tail", "")}
+    return outcome
 
 
 def _outcome_of(fut: cf.Future, spec: RunSpec) -> dict:

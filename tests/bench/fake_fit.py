@@ -4,7 +4,8 @@ PSNR depends on seed and iteration (``20 + iteration + seed / 10``) so tests can
 through unchanged.  Environment knobs:
 ``FAKE_FIT_CRASH_SEEDS`` (comma list): SIGKILL itself for these seeds (simulated OOM kill) after writing a
 partial metrics.json; ``FAKE_FIT_ALLOC_MB``: touch this many MiB before finishing (peak-memory check);
-``FAKE_FIT_SLEEP``: seconds to sleep per iteration; ``FAKE_FIT_PIDFILE``: write the fit's pid there.
+``FAKE_FIT_SLEEP``: seconds to sleep per iteration; ``FAKE_FIT_SECONDS``: the seconds it reports (1.5);
+``FAKE_FIT_PIDFILE``: write the fit's pid there.
 """
 
 import argparse
@@ -56,7 +57,7 @@ def main(argv):
         psnr = 20.0 + k + a.seed / 10.0
         metrics["iterations"].append({
             "iteration": k, "psnr": psnr, "ssim": 0.5 + 0.01 * k, "lpips": "unavailable", "avg": "unavailable",
-            "reliable_fraction": None if k == 0 else 0.8, "seconds": 1.5,
+            "reliable_fraction": None if k == 0 else 0.8, "seconds": float(os.environ.get("FAKE_FIT_SECONDS", "1.5")),
             "per_view": {"psnr": [psnr - 1, psnr, psnr + 1], "ssim": [0.5, 0.5, 0.5]}})
         metrics["seconds_total"] += 1.5
         write_atomic(out / "metrics.json", metrics)

@@ -183,3 +183,16 @@ def test_fit_stops_when_its_driver_dies(blender_scene, fake_fit_command, tmp_pat
             return
         time.sleep(0.1)
     pytest.fail("the fit outlived its driver by more than 10 s")
+
+
+def test_a_run_reporting_impossible_values_fails_and_the_file_stays_readable(blender_scene, fake_fit_command, tmp_path):
+    # Before, a fit command's negative seconds were filed as an ok run, and every later command refused the
+    # results file naming that line (so at 45ed16b).
+    specs = _specs(blender_scene, seeds=(0,))
+    first = _run(specs, tmp_path, fake_fit_command, env=(("FAKE_FIT_SECONDS", "-1"),))
+    assert (first.ok, first.failed) == (0, 2)
+    records, bad = load_results(tmp_path / "results.jsonl")
+    assert bad == 0 and {r["status"] for r in records} == {"failed"}
+    assert all(r["error"] == "metrics.json: iteration 0: seconds: -1.0 is not a finite number >= 0" for r in records)
+    second = _run(specs, tmp_path, fake_fit_command)   # retried, and filed
+    assert (second.ok, second.failed, second.skipped) == (2, 0, 0)
