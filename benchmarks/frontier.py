@@ -26,6 +26,7 @@ from senerf.bench.results import load_results
 from senerf.bench.runner import dry_run_lines, run_benchmark
 from senerf.bench.specs import PRESETS, expand_specs
 from senerf.bench.summary import aggregate, final_iterations, format_table
+from senerf.cliargs import run_command
 
 PROTOCOL = "synthetic-extreme3@100"
 METHODS = ["baseline", "senerf"]
@@ -93,5 +94,5 @@ def main(argv: list[str] | None = None) -> int:
     return 1 if outcome.failed else 0
 
 
-if __name__ == "__main__":
-    sys.exit(main())
+if __name__ == "__main__":   # bad input (a refused results line, say) as one line and exit 2, not a traceback
+    sys.exit(run_command("frontier", main, "rerun the same command to resume"))

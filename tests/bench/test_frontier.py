@@ -44,3 +44,19 @@ def test_frontier_uses_each_presets_iterations_and_methods(blender_scene, tmp_pa
     for f in fits:
         preset = f.split("--preset ")[1].split()[0]
         assert f"--iterations {PRESETS[preset]['iterations']} " in f
+
+
+def test_frontier_reports_bad_input_in_one_line(blender_scene, tmp_path):
+    # Before, a refused results line (or any InputError) ended the script with a traceback (so at ff8aed7).
+    import subprocess
+    import sys
+
+    out = tmp_path / "fr"
+    out.mkdir()
+    (out / "results.jsonl").write_text('{"schema": 99, "run_key": "k"}\n')
+    proc = subprocess.run([sys.executable, str(FRONTIER), "--scene", str(blender_scene), "--out", str(out),
+                           "--presets", "fast", "--seeds", "0", "--methods", "baseline"],
+                          capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 2 and "Traceback" not in proc.stderr
+    assert proc.stderr.strip() == (f"frontier: error: {out / 'results.jsonl'}: schema: 99 is newer than this version "
+                                   "of senerf reads (schema 1); upgrade senerf to read it (line 1, run k)")
