@@ -481,6 +481,8 @@ def _run(args, argv) -> int:
 
     scene_dir = scene_root(args.scene)  # a marker file (transforms_train.json, ...) names its folder
     fmt = detect_format(scene_dir)
+    if args.out is not None and args.out.resolve() == scene_dir.resolve():   # the run's files among the photos
+        raise InputError("is the scene folder; choose another --out (a folder inside it is fine)", file=args.out)
     downscale = args.downscale if args.downscale is not None else (8.0 if fmt == "llff" else 1.0)
     kind = None if args.scene_kind is None else args.scene_kind.replace("-", "_")
     if kind is not None and fmt != "colmap":

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+import shutil
 import subprocess
 import sys
 
@@ -447,6 +448,19 @@ def test_n_views_given_at_its_protocols_default_resumes_the_same_run(tiny_scene,
     assert "different run (n_views: null in the folder, 2 now)" in _one_error_line(capsys)
     other = [str(tiny_scene), "--out", str(tmp_path / "p"), "--protocol", "spread", "--n-views", "3", *SMALL]
     assert main(other) == 0 and main(other[:5] + other[7:]) == 0   # the other way round too
+
+
+def test_out_the_scene_folder_itself_is_refused(tiny_scene, capsys):
+    # Before, `--out SCENE --overwrite` wrote run.json, metrics.json, checkpoints/ and iter_0/ among the photos
+    # (so at 7c49076).
+    before = sorted(p.name for p in tiny_scene.iterdir())
+    for out in (tiny_scene, tiny_scene / "train" / ".."):
+        assert main([str(tiny_scene), "--out", str(out), "--overwrite", *TINY]) == 2
+        assert f"{out}: is the scene folder; choose another --out" in _one_error_line(capsys)
+    assert sorted(p.name for p in tiny_scene.iterdir()) == before
+    inside = tiny_scene / "fits" / "a"
+    assert main([str(tiny_scene), "--out", str(inside), *TINY]) == 0
+    shutil.rmtree(tiny_scene / "fits")
 
 
 def test_negative_views_get_the_range_message_and_a_file_is_not_missing(tiny_scene, tmp_path, capsys):
