@@ -158,3 +158,15 @@ def test_model_config_switches_are_bools(name):
     for good, want in ((True, True), (False, False), (np.True_, True), (np.False_, False)):
         value = getattr(ModelConfig(**{name: good}), name)
         assert value is want
+
+
+def test_aabb_takes_a_torch_tensor():
+    # Catches: an aabb given as a tensor (or rows of tensors) refused because its elements are 0-d tensors, not
+    # numbers (accepted at 79e2799, refused at 61dd78c); a bool tensor accepted.
+    import torch
+
+    want = ((-1.0, -2.0, -3.0), (1.0, 2.0, 3.0))
+    assert ModelConfig(aabb=torch.tensor(want)).aabb == want
+    assert ModelConfig(aabb=(torch.tensor(want[0]), np.array(want[1]))).aabb == want
+    with pytest.raises(InputError, match="^aabb: "):
+        ModelConfig(aabb=torch.tensor([[False] * 3, [True] * 3]))

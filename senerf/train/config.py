@@ -184,7 +184,7 @@ class ModelConfig:
                 raise InputError(f"must be True or False, got {getattr(self, name)!r}", field=name)
             object.__setattr__(self, name, bool(getattr(self, name)))
         try:
-            values = [v for row in self.aabb for v in row]   # bools and numeric strings would convert below
+            values = [v for row in _listed(self.aabb) for v in _listed(row)]   # bools, numeric strings would convert
             box = np.asarray(self.aabb, dtype=np.float64)
         except (TypeError, ValueError, OverflowError):   # a string, a dict, ragged rows, 10 ** 400: not numbers
             values, box = [], np.full((0,), np.nan)
@@ -249,6 +249,11 @@ class ModelConfig:
         with and what the rays are clipped to."""
         box = np.asarray(self.aabb, dtype=np.float64) - np.asarray(self.frame_origin)
         return tuple(tuple(float(v) for v in row) for row in box)
+
+
+def _listed(values: Any) -> Any:
+    """An array's or tensor's ``tolist()`` (plain Python numbers, bools kept as bools); anything else as it is."""
+    return values.tolist() if callable(getattr(values, "tolist", None)) else values
 
 
 def _real(value: Any, name: str, ok: Callable[[Any], bool] | None = None,
