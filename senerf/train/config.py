@@ -281,8 +281,8 @@ PRESETS: dict[str, dict[str, Any]] = {
     # of rendering and features.  BENCHMARKS.md's frontier table measures what each preset buys; its
     # preset ladder (paired over 6 seeds, one-sided paired t-test) decides which presets stay: balanced
     # bought +0.54 ± 0.62 dB over fast (p = 0.045), and +0.81 ± 0.94 dB over 9 seeds of the current code
-    # (session 16: 17.93 ± 0.41 against 17.12 ± 0.72 dB, p = 0.016).  A "quality" preset (3000 x 2048, 1 iteration, 312 s)
-    # was removed: it cost as much as balanced (342 s) and gave less (17.75 ± 0.57 vs 17.92 ± 0.29 dB).
+    # (session 16: 17.93 ± 0.41 against 17.12 ± 0.72 dB, p = 0.016).  A "quality" preset (3000 x 2048, 1 iteration,
+    # 312 s) was removed: it cost as much as balanced (342 s) and gave less (17.75 ± 0.57 vs 17.92 ± 0.29 dB).
     "fast": dict(train=dict(steps=600, batch_rays=1024), model={}, iterations=1),
     "balanced": dict(train=dict(steps=1000, batch_rays=4096), model={}, iterations=3),
 }
