@@ -342,12 +342,11 @@ def _comparable(identity: dict) -> dict:
     explicitly at its default value, or recorded as None, names the same run as one not given), ``n_views``
     at its protocol's default as None (likewise), and without the scene files' digests (:func:`_files_changed`
     compares those)."""
-    from senerf.data.fewshot import DEFAULT_N_VIEWS
+    from senerf.data.fewshot import explicit_n_views
 
     identity = {k: v for k, v in identity.items() if k != "scene_files"}
-    n_views, protocol = identity.get("n_views"), identity.get("protocol")
-    if n_views is not None and isinstance(protocol, str) and n_views == DEFAULT_N_VIEWS.get(protocol):
-        identity["n_views"] = None   # --n-views given at its protocol's default: the same run as without it
+    if "n_views" in identity:   # a folder written before --n-views at its default was recorded as None
+        identity["n_views"] = explicit_n_views(identity.get("protocol"), identity["n_views"])
     defaults = {"empty_opacity": EMPTY_OPACITY_DEFAULT, "pseudo_range_deg": PSEUDO_RANGE_DEFAULT,
                 "pseudo_range_step_deg": PSEUDO_RANGE_STEP_DEFAULT, "n_pseudo_per_input": PSEUDO_VIEWS_DEFAULT,
                 "batch_empty": BATCH_EMPTY_DEFAULT, "student_grid": STUDENT_GRID_DEFAULT}
@@ -477,6 +476,7 @@ def _run(args, argv) -> int:
         raise InputError("a SCENE_DIR is required (or --demo)", field="SCENE_DIR")
 
     from senerf.data import detect_format, fewshot_split, load_scene, scene_root, spread_views, view_names
+    from senerf.data.fewshot import explicit_n_views
     from senerf.train import PRESETS, choose_model, config_to_dict, preset_train_config
 
     scene_dir = scene_root(args.scene)  # a marker file (transforms_train.json, ...) names its folder
@@ -568,7 +568,8 @@ def _run(args, argv) -> int:
     _check_step_fits(model, train_cfg.batch_rays)   # after the features' check, which names the likelier cause
     out = args.out if args.out is not None else Path("runs") / f"{scene.name}-{protocol}"
     config = dict(scene_dir=str(scene_dir.resolve()), format=fmt, downscale=downscale, protocol=protocol,
-                  views=args.views, n_views=args.n_views, preset=args.preset, train=config_to_dict(train_cfg),
+                  views=args.views, n_views=explicit_n_views(protocol, args.n_views), preset=args.preset,
+                  train=config_to_dict(train_cfg),
                   model=config_to_dict(model),
                   selftrain=None if st_cfg is None else config_to_dict(st_cfg))
     if kind is not None:  # only when chosen: runs made before the flag existed keep their identity

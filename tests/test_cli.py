@@ -450,6 +450,25 @@ def test_n_views_given_at_its_protocols_default_resumes_the_same_run(tiny_scene,
     assert main(other) == 0 and main(other[:5] + other[7:]) == 0   # the other way round too
 
 
+def test_n_views_at_its_default_resumes_a_self_training_run(tiny_scene, tmp_path, capsys, monkeypatch):
+    # Before, the teacher checkpoint's settings kept the raw count: "output folder holds a run with different
+    # settings (config.n_views: null in the folder, 3 now)" (so at 5258768).
+    import senerf.cli as cli
+    import senerf.data.fewshot as fewshot
+
+    flags = ["--protocol", "spread", *SMALL, "--iterations", "1", "--reliability", "oracle", "--pseudo-views", "1"]
+    for i, (first, then) in enumerate(((["--n-views", "3"], []), ([], ["--n-views", "3"]))):
+        out = ["--out", str(tmp_path / f"o{i}")]
+        if i == 0:   # as senerf-fit recorded it before: the count as given, 3, in run.json and the checkpoints
+            monkeypatch.setitem(fewshot.DEFAULT_N_VIEWS, "spread", 99)
+        assert main([str(tiny_scene), *out, *flags, *first]) == 0
+        monkeypatch.undo()
+        assert main([str(tiny_scene), *out, *flags, *then]) == 0, capsys.readouterr().err
+        assert "nothing to train" in capsys.readouterr().out
+    assert json.loads((tmp_path / "o1" / "run.json").read_text())["n_views"] is None   # recorded as not given
+    assert cli.main([str(tiny_scene), "--out", str(tmp_path / "o1"), *flags, "--n-views", "2"]) == 2
+
+
 def test_out_the_scene_folder_itself_is_refused(tiny_scene, capsys):
     # Before, `--out SCENE --overwrite` wrote run.json, metrics.json, checkpoints/ and iter_0/ among the photos
     # (so at 7c49076).

@@ -46,7 +46,7 @@ from .llff import LLFF_HOLDOUT
 from .scene import Scene
 
 __all__ = ["fewshot_split", "spread_views", "PROTOCOLS", "EXTREME_VIEWS", "INFONERF4_VIEWS", "LLFF_HOLDOUT",
-           "DEFAULT_N_VIEWS"]
+           "DEFAULT_N_VIEWS", "explicit_n_views"]
 
 #: NeRF Synthetic Extreme (3 views, indices into the train split), REFERENCE section 5.
 EXTREME_VIEWS = {
@@ -64,6 +64,19 @@ INFONERF4_VIEWS = (26, 86, 2, 55)
 PROTOCOLS = ("extreme", "infonerf4", "random8", "spread", "llff", "views", "all")
 #: The number of training views of the protocols that take ``n_views``, when it is not given.
 DEFAULT_N_VIEWS = {"random8": 8, "spread": 3, "llff": 3}
+
+
+def explicit_n_views(protocol, n_views):
+    """``n_views`` as a run records it: None when it is the protocol's default (:data:`DEFAULT_N_VIEWS`), so a
+    count given at its default names the same run as one not given; any other value (or protocol) as it is.
+
+    Example:
+        >>> explicit_n_views("llff", 3), explicit_n_views("llff", 4), explicit_n_views("random8", 8)
+        (None, 4, None)
+    """
+    if n_views is not None and isinstance(protocol, str) and n_views == DEFAULT_N_VIEWS.get(protocol):
+        return None
+    return n_views
 
 
 def _as_view_list(views, n: int, what: str, table: str | None = None) -> np.ndarray:

@@ -48,6 +48,7 @@ import torch
 
 from .. import geometry
 from ..data import changed_files, run_file_digests
+from ..data.fewshot import explicit_n_views
 from ..errors import InputError
 from ..train import (atomic_write_text, build_field, camera_rays, config_to_dict, differences_text, eval_images,
                      evaluate, finished_metrics, iteration_row, load_checkpoint, resume_host_line,
@@ -608,6 +609,15 @@ def _save_teacher(path: Path, field, occupancy, iteration: int, settings: dict, 
     save_checkpoint(path, state)
 
 
+def _n_views_as_recorded(settings):
+    """``settings`` with ``config.n_views`` at its protocol's default as None (:func:`explicit_n_views`): folders
+    written before senerf-fit recorded it so resume with or without ``--n-views`` at its default."""
+    config = settings.get("config") if isinstance(settings, dict) else None
+    if not isinstance(config, dict) or "n_views" not in config:
+        return settings
+    return {**settings, "config": {**config, "n_views": explicit_n_views(config.get("protocol"), config["n_views"])}}
+
+
 def _check_settings(path: Path, state: dict, settings: dict) -> None:
     """Refuse a teacher checkpoint of another run, naming the first setting that differs (checkpoints from
     before ``settings_json`` are matched by fingerprint and cannot name it)."""
@@ -615,7 +625,8 @@ def _check_settings(path: Path, state: dict, settings: dict) -> None:
     if state.get("format") != _CKPT_FORMAT:
         raise InputError(f"output folder holds a checkpoint of another format; {hint}", file=path)
     if "settings_json" in state:
-        diffs = settings_differences(json.loads(state["settings_json"]), settings, _ADDED_SETTINGS)
+        diffs = settings_differences(_n_views_as_recorded(json.loads(state["settings_json"])),
+                                     _n_views_as_recorded(settings), _ADDED_SETTINGS)
         if diffs:
             raise InputError(f"output folder holds a run with different settings ({differences_text(diffs)}); "
                              f"{hint}", file=path)
