@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import shlex
 import shutil
 import sys
@@ -363,6 +364,20 @@ def _own_outputs(out: Path) -> list[Path]:
     return found + sorted(p for p in out.glob("iter_*") if p.is_dir())
 
 
+def _refuse_out_among_inputs(out: Path, scene_dir: Path, image_paths) -> None:
+    """:class:`InputError` when ``out`` is the scene folder or a folder of its photos (with ``--overwrite`` the
+    run's files would land among them, and the next load would count them); a new folder inside is fine."""
+    inputs = [(scene_dir, "the scene folder")]
+    inputs += [(folder, "a folder of the scene's photos") for folder in sorted({Path(p).parent for p in image_paths})]
+    for folder, what in inputs:
+        try:
+            same = os.path.samefile(out, folder)
+        except OSError:   # out not there yet (or unresolvable, a link loop: output_folder names that later)
+            return
+        if same:
+            raise InputError(f"is {what}; choose another --out (a new folder inside it is fine)", file=out)
+
+
 def _prepare_out(out: Path, identity: dict, overwrite: bool) -> None:
     """Refuse a folder holding another run (unless ``overwrite``); record this run's identity.
 
@@ -481,14 +496,14 @@ def _run(args, argv) -> int:
 
     scene_dir = scene_root(args.scene)  # a marker file (transforms_train.json, ...) names its folder
     fmt = detect_format(scene_dir)
-    if args.out is not None and args.out.resolve() == scene_dir.resolve():   # the run's files among the photos
-        raise InputError("is the scene folder; choose another --out (a folder inside it is fine)", file=args.out)
     downscale = args.downscale if args.downscale is not None else (8.0 if fmt == "llff" else 1.0)
     kind = None if args.scene_kind is None else args.scene_kind.replace("-", "_")
     if kind is not None and fmt != "colmap":
         raise InputError(f"applies to COLMAP scenes only; {scene_dir} is a {fmt} scene", field="--scene-kind")
     print(f"{PROG}: reading {scene_dir} ({fmt}, downscale {downscale:g})", flush=True)   # seconds for 400 photos
     scene = load_scene(scene_dir, downscale=downscale, kind=kind)
+    if args.out is not None:
+        _refuse_out_among_inputs(args.out, scene_dir, scene.image_paths)
     from senerf.train.metrics import SSIM_MIN_SIDE
 
     if min(scene.size) < SSIM_MIN_SIDE:

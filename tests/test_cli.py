@@ -469,17 +469,24 @@ def test_n_views_at_its_default_resumes_a_self_training_run(tiny_scene, tmp_path
     assert cli.main([str(tiny_scene), "--out", str(tmp_path / "o1"), *flags, "--n-views", "2"]) == 2
 
 
-def test_out_the_scene_folder_itself_is_refused(tiny_scene, capsys):
+def test_out_the_scene_folder_itself_is_refused(tiny_scene, tmp_path, capsys):
     # Before, `--out SCENE --overwrite` wrote run.json, metrics.json, checkpoints/ and iter_0/ among the photos
     # (so at 7c49076).
     before = sorted(p.name for p in tiny_scene.iterdir())
-    for out in (tiny_scene, tiny_scene / "train" / ".."):
+    photos = sorted(p.name for p in (tiny_scene / "train").iterdir())
+    for out, what in ((tiny_scene, "the scene folder"), (tiny_scene / "train" / "..", "the scene folder"),
+                      (tiny_scene / "train", "a folder of the scene's photos")):
         assert main([str(tiny_scene), "--out", str(out), "--overwrite", *TINY]) == 2
-        assert f"{out}: is the scene folder; choose another --out" in _one_error_line(capsys)
+        assert f"{out}: is {what}; choose another --out" in _one_error_line(capsys)
     assert sorted(p.name for p in tiny_scene.iterdir()) == before
+    assert sorted(p.name for p in (tiny_scene / "train").iterdir()) == photos
     inside = tiny_scene / "fits" / "a"
     assert main([str(tiny_scene), "--out", str(inside), *TINY]) == 0
     shutil.rmtree(tiny_scene / "fits")
+    loop = tmp_path / "loop"   # a link to itself: one line naming it (an internal error at 7e0bca1)
+    loop.symlink_to(loop)
+    assert main([str(tiny_scene), "--out", str(loop), *TINY]) == 2
+    assert str(loop) in _one_error_line(capsys)
 
 
 def test_negative_views_get_the_range_message_and_a_file_is_not_missing(tiny_scene, tmp_path, capsys):
