@@ -490,7 +490,8 @@ def write_frames(out: Path, frames: dict, record: dict, fps: float, overwrite: b
     """Write the frames, the two GIFs (and ``compare.gif`` of ``compare (n, H', W', 3)`` uint8 when given)
     and ``path.json`` into a temporary sibling of ``out``, then rename it to ``out``.  An existing ``out`` is
     replaced only with ``overwrite`` and only when it is a senerf-render folder (it holds ``path.json``
-    written by this command)."""
+    written by this command); an empty folder (not a link) is filled instead, its files moved in, path.json
+    last."""
     import imageio.v3 as iio
 
     from senerf.train import write_png
@@ -509,7 +510,9 @@ def write_frames(out: Path, frames: dict, record: dict, fps: float, overwrite: b
         (tmp / _MARKER).write_text(json.dumps(record, indent=1))
         (tmp / _PARTIAL).unlink()   # from here on path.json marks it (recover_interrupted)
         os.chmod(tmp, 0o755)
-        if out.exists() and not _empty_folder(out):
+        if _empty_folder(out):   # the user's own folder, kept (its mode, its owner, a shell inside it)
+            _fill(out, tmp)
+        elif out.exists():
             old = out.with_name(f".{out.name}.old-{os.getpid()}")
             try:
                 out.rename(old)
@@ -519,7 +522,7 @@ def write_frames(out: Path, frames: dict, record: dict, fps: float, overwrite: b
                     old.rename(out)
                 raise
             shutil.rmtree(old, ignore_errors=True)
-        else:   # rename(2) replaces an empty folder in one step
+        else:
             tmp.rename(out)
     except OSError as exc:   # a full disk, a folder that turned read-only: the earlier output (if any) stays
         raise InputError(f"cannot write there ({exc.strerror or exc})", file=out) from None
@@ -527,6 +530,21 @@ def write_frames(out: Path, frames: dict, record: dict, fps: float, overwrite: b
         if tmp.exists():
             shutil.rmtree(tmp, ignore_errors=True)
     return out
+
+
+def _fill(out: Path, tmp: Path) -> None:
+    """Move ``tmp``'s files into the empty folder ``out``, ``path.json`` last; an interrupt (Ctrl-C, SIGTERM)
+    meanwhile moves them back, so ``out`` is left empty, as it was."""
+    names = sorted(p.name for p in tmp.iterdir() if p.name != _MARKER) + [_MARKER]
+    moved = []
+    try:
+        for name in names:
+            (tmp / name).rename(out / name)
+            moved.append(name)
+    except BaseException:
+        for name in moved:
+            (out / name).rename(tmp / name)
+        raise
 
 
 def _missing_folders(folder: Path) -> list[Path]:
@@ -625,7 +643,8 @@ def _is_ours(folder: Path) -> bool:
 
 
 def _empty_folder(path: Path) -> bool:
-    """True for an empty folder that is not a symbolic link (a link is never replaced by a rename)."""
+    """True for an empty folder that is not a symbolic link (:func:`write_frames` fills it; a link is refused as
+    before, without ``--overwrite``)."""
     return path.is_dir() and not path.is_symlink() and not any(path.iterdir())
 
 
@@ -691,6 +710,7 @@ def _run(args, argv: list[str]) -> int:
     if args.elevation is not None and args.path not in (None, "orbit"):
         raise InputError("applies to --path orbit only", field="--elevation")
     if args.out is not None:
+        args.out = Path(os.path.abspath(args.out))   # `--out .` has no name to make a sibling of
         _check_out(args.out, args.overwrite)   # before loading anything
     run = load_fitted_run(args.run, args.iteration, device)
     path = args.path or ("spiral" if run.scene.kind == "forward_facing" else "orbit")

@@ -7,6 +7,7 @@ import json
 import re
 import shutil
 import types
+from pathlib import Path
 
 import imageio.v3 as iio
 import numpy as np
@@ -191,15 +192,24 @@ def test_folders_that_are_not_finished_runs_are_refused_by_name(runs, tmp_path, 
     assert not (moved / "render").exists() and not (broken / "render").exists()
 
 
-def test_an_empty_out_folder_is_written_into_with_or_without_overwrite(runs, tmp_path, capsys):
+def test_an_empty_out_folder_is_written_into_with_or_without_overwrite(runs, tmp_path, capsys, monkeypatch):
     # Before, an empty folder made for the frames was refused ("exists; use --overwrite"), and with --overwrite
     # as "not a senerf-render output" (so at 7c49076).
     for i, extra in enumerate(([], ["--overwrite"])):
         out = tmp_path / f"made{i}"
         out.mkdir()
+        out.chmod(0o2770)   # the folder is the user's: filled, not replaced (a rename lost its mode, review of 5258768)
+        inode = out.stat().st_ino
         assert main([str(runs.base), "--out", str(out), "--frames", "2", "--quiet", *extra]) == 0
         assert json.loads((out / "path.json").read_text())["senerf_render"] is not None
         assert sorted(p.name for p in out.glob("rgb_*.png")) == ["rgb_000.png", "rgb_001.png"]
+        assert out.stat().st_ino == inode and out.stat().st_mode & 0o7777 == 0o2770
+    here = tmp_path / "here"   # `--out .` in an empty folder (a ValueError, "empty name", at 5258768)
+    here.mkdir()
+    monkeypatch.chdir(here)
+    assert main([str(runs.base), "--out", ".", "--frames", "2", "--quiet"]) == 0
+    assert (here / "path.json").is_file() and (here / "rgb_001.png").is_file()
+    assert [p.name for p in tmp_path.iterdir() if p.name.startswith(".")] == []   # no temporary folder left
     target = tmp_path / "target"
     target.mkdir()
     link = tmp_path / "link"
@@ -207,6 +217,32 @@ def test_an_empty_out_folder_is_written_into_with_or_without_overwrite(runs, tmp
     assert main([str(runs.base), "--out", str(link), "--frames", "2", "--quiet"]) == 2
     assert "exists; use --overwrite" in _error(capsys)
     assert link.is_symlink() and not any(target.iterdir())
+
+
+def test_an_interrupt_while_filling_an_empty_folder_leaves_it_empty(tmp_path, monkeypatch):
+    # Catches: _fill's rollback removed (the files moved so far stayed in the user's folder, without path.json).
+    import senerf.flythrough as fly
+
+    out, tmp = tmp_path / "mine", tmp_path / "tmp"
+    out.mkdir()
+    tmp.mkdir()
+    for name in ("rgb_000.png", "rgb_001.png", "path.json"):
+        (tmp / name).write_text(name)
+    real, calls = Path.rename, []
+
+    def interrupted(self, target):
+        calls.append(self.name)
+        if len(calls) == 2:
+            raise KeyboardInterrupt
+        return real(self, target)
+    monkeypatch.setattr(Path, "rename", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        fly._fill(out, tmp)
+    monkeypatch.undo()
+    assert list(out.iterdir()) == [] and sorted(p.name for p in tmp.iterdir()) == ["path.json", "rgb_000.png",
+                                                                                  "rgb_001.png"]
+    fly._fill(out, tmp)
+    assert sorted(p.name for p in out.iterdir()) == ["path.json", "rgb_000.png", "rgb_001.png"]
 
 
 def test_out_is_replaced_only_when_it_is_ours_and_never_half_written(runs, tmp_path, capsys, monkeypatch):
