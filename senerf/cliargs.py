@@ -192,8 +192,9 @@ def _interrupt_behind(exc: BaseException) -> bool:
 def run_command(prog: str, body, interrupted: str) -> int:
     """``body()``'s exit status, with every way out of a command mapped to one: 2 for bad input (one line
     ``<prog>: error: <message>``, no traceback), argparse's own status for ``--help`` / ``--version``, 130 when
-    interrupted (``interrupted`` says what to do next; also for an error raised while an interrupt unwound), 2
-    also for a full disk (one line, with ``interrupted``), 1 for an internal error (with the traceback).
+    interrupted (``interrupted`` says what to do next; also for an error raised while an interrupt unwound,
+    which the line names), 2 also for a full disk (one line, with ``interrupted``), 1 for an internal error
+    (with the traceback).
     Warnings raised meanwhile print as one ``<prog>: warning: <message>`` line each, without source lines.
     A SIGTERM (what batch schedulers send) counts as an interrupt, so ``finally`` blocks run and temporary
     files go."""
@@ -218,8 +219,10 @@ def run_command(prog: str, body, interrupted: str) -> int:
         print(f"{prog}: interrupted ({interrupted})", file=sys.stderr)
         return 130
     except Exception as exc:
-        if _interrupt_behind(exc):
-            print(f"{prog}: interrupted ({interrupted})", file=sys.stderr)
+        if _interrupt_behind(exc):   # named, in case it is a bug of the cleanup rather than the interrupt's
+            said = " ".join(str(exc).split())
+            print(f"{prog}: interrupted ({interrupted}); while stopping: {type(exc).__name__}"
+                  + (f": {said}" if said else ""), file=sys.stderr)
             return 130
         if isinstance(exc, OSError) and exc.errno in _USER_ERRNOS and exc.filename:
             # a file or folder of the user's we may not read or search (or name): theirs to fix, one line

@@ -109,7 +109,8 @@ def test_run_command_maps_every_way_out_to_its_exit_status(capsys):
         finally:
             raise ImportError("cannot import name 'linalg' from partially initialized module 'numpy'")
     assert run_command("prog", interrupted_import, "rerun it") == 130
-    assert capsys.readouterr().err == "prog: interrupted (rerun it)\n"
+    assert capsys.readouterr().err == ("prog: interrupted (rerun it); while stopping: ImportError: cannot import name "
+                                       "'linalg' from partially initialized module 'numpy'\n")
     looped = RuntimeError("a")   # a chain that loops ends the search
     looped.__context__ = ValueError("b")
     looped.__context__.__context__ = looped
