@@ -170,3 +170,24 @@ def test_aabb_takes_a_torch_tensor():
     assert ModelConfig(aabb=(torch.tensor(want[0]), np.array(want[1]))).aabb == want
     with pytest.raises(InputError, match="^aabb: "):
         ModelConfig(aabb=torch.tensor([[False] * 3, [True] * 3]))
+
+
+def test_zero_dimensional_arrays_and_tensors_are_taken_as_their_numbers():
+    # Catches: a 0-d array or tensor (what x.sum() or torch.tensor(0.5) gives) refused as "must be a number"
+    # (accepted at 79e2799, refused at 61dd78c), or kept as an array (json.dumps of run.json refuses it); a 0-d
+    # bool accepted as a number.
+    import torch
+
+    model = ModelConfig(near=torch.tensor(0.5), far=np.array(4.0), density_shift=np.array(-1),
+                        aabb=((np.array(-1.0), torch.tensor(-1.0), -1), (1, 1, 1)), multires=torch.tensor([1, 2]),
+                        view_dependent=torch.tensor(False), ndc=np.array(False))
+    assert (model.near, model.far, model.density_shift, model.multires) == (0.5, 4.0, -1, (1, 2))
+    assert type(model.near) is float and type(model.density_shift) is int
+    assert model.view_dependent is False and model.ndc is False
+    assert TrainConfig(lr=np.array(0.01)).lr == 0.01 and type(TrainConfig(lr=np.array(0.01)).lr) is float
+    with pytest.raises(InputError, match="^lr: must be a number, got "):
+        TrainConfig(lr=np.array(True))
+    with pytest.raises(InputError, match="^tv_weight: must be a number, got "):
+        TrainConfig(tv_weight=np.array([0.1]))   # one value, but not a 0-d one
+    with pytest.raises(InputError, match="^view_dependent: must be True or False"):
+        ModelConfig(view_dependent=torch.tensor(1))

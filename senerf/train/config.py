@@ -106,9 +106,9 @@ class TrainConfig:
         _positive_int(self.occupancy_every, "occupancy_every", allow_zero=True)
         _positive_int(self.occupancy_warmup, "occupancy_warmup", allow_zero=True)
         _positive_int(self.checkpoint_every, "checkpoint_every", allow_zero=True)
-        _real(self.lr, "lr", lambda v: v > 0, "must be a positive number")
-        _real(self.lr_final_factor, "lr_final_factor", lambda v: 0 <= v <= 1, "must be in [0, 1]")
-        _real(self.tv_weight, "tv_weight", lambda v: v >= 0, "must be >= 0")
+        _real(self, "lr", lambda v: v > 0, "must be a positive number")
+        _real(self, "lr_final_factor", lambda v: 0 <= v <= 1, "must be in [0, 1]")
+        _real(self, "tv_weight", lambda v: v >= 0, "must be >= 0")
         if not isinstance(self.seed, numbers.Integral) or isinstance(self.seed, bool):
             raise InputError(f"must be an integer, got {self.seed!r}", field="seed")
         object.__setattr__(self, "seed", int(self.seed))   # a NumPy integer as a plain int (JSON, checkpoints)
@@ -180,13 +180,14 @@ class ModelConfig:
         if self.field not in _FIELDS:
             raise InputError(f"must be one of {', '.join(_FIELDS)}, got {self.field!r}", field="field")
         for name in ("ndc", "view_dependent"):   # a string such as "no" would count as true
-            if not isinstance(getattr(self, name), (bool, np.bool_)):
+            value = _scalar(getattr(self, name))
+            if not isinstance(value, (bool, np.bool_)):
                 raise InputError(f"must be True or False, got {getattr(self, name)!r}", field=name)
-            object.__setattr__(self, name, bool(getattr(self, name)))
-        try:
-            values = [v for row in _listed(self.aabb) for v in _listed(row)]   # bools, numeric strings would convert
-            box = np.asarray(self.aabb, dtype=np.float64)
-        except (TypeError, ValueError, OverflowError):   # a string, a dict, ragged rows, 10 ** 400: not numbers
+            object.__setattr__(self, name, bool(value))
+        try:   # each value as a plain number first: bools and numeric strings would convert in np.asarray
+            rows = [[_scalar(v) for v in _listed(row)] for row in _listed(self.aabb)]
+            values, box = [v for row in rows for v in row], np.asarray(rows, dtype=np.float64)
+        except (TypeError, ValueError, OverflowError):   # a dict, ragged rows, 10 ** 400: not numbers
             values, box = [], np.full((0,), np.nan)
         if (box.shape != (2, 3) or not all(is_number(v) for v in values) or not np.all(np.isfinite(box))
                 or not np.all(box[1] > box[0])):
@@ -196,19 +197,19 @@ class ModelConfig:
         if (self.near is None) != (self.far is None):
             raise InputError("give both near and far, or neither", field="near/far")
         if self.near is not None:
-            _real(self.near, "near")
-            _real(self.far, "far")
+            _real(self, "near")
+            _real(self, "far")
             if not (0 <= self.near < self.far):
                 raise InputError(f"need 0 <= near < far, got {self.near!r}, {self.far!r}", field="near/far")
-        _real(self.ndc_near, "ndc_near", lambda v: v > 0, "must be positive")
-        _real(self.density_shift, "density_shift")
+        _real(self, "ndc_near", lambda v: v > 0, "must be positive")
+        _real(self, "density_shift")
         for name in ("resolution", "n_features", "n_samples", "hidden"):
             _positive_int(getattr(self, name), name)
         _positive_int(self.occupancy_resolution, "occupancy_resolution", allow_zero=True)
-        _real(self.occupancy_threshold, "occupancy_threshold", lambda v: v >= 0, "must be >= 0")
-        _real(self.occupancy_decay, "occupancy_decay", lambda v: 0 <= v <= 1, "must be in [0, 1]")
+        _real(self, "occupancy_threshold", lambda v: v >= 0, "must be >= 0")
+        _real(self, "occupancy_decay", lambda v: 0 <= v <= 1, "must be in [0, 1]")
         try:
-            multires = tuple(self.multires)
+            multires = tuple(_scalar(m) for m in _listed(self.multires))
         except TypeError:   # a number, None: not a sequence
             multires = ()
         if not multires or not all(isinstance(m, numbers.Integral) and not isinstance(m, bool) and m >= 1
@@ -256,15 +257,26 @@ def _listed(values: Any) -> Any:
     return values.tolist() if callable(getattr(values, "tolist", None)) else values
 
 
-def _real(value: Any, name: str, ok: Callable[[Any], bool] | None = None,
+def _scalar(value: Any) -> Any:
+    """A 0-d array's or tensor's plain Python value (``item()``: a bool stays a bool); anything else, NumPy
+    scalars included, as it is."""
+    if not isinstance(value, numbers.Number) and getattr(value, "ndim", None) == 0 and hasattr(value, "item"):
+        return value.item()
+    return value
+
+
+def _real(config: Any, name: str, ok: Callable[[Any], bool] | None = None,
           wanted: str = "must be a finite number") -> None:
-    """:class:`InputError` naming ``name`` unless ``value`` is a number (:func:`senerf.errors.is_number`:
-    finite, not a bool) for which ``ok`` holds: "must be a number" for what is none (a bool, a string,
-    None), ``wanted`` for a NaN, an infinity or a number out of range."""
+    """Keep ``config.name`` (a 0-d array or tensor as its plain number, :func:`_scalar`) when it is a number
+    (:func:`senerf.errors.is_number`: finite, not a bool) for which ``ok`` holds; else :class:`InputError`
+    naming ``name``: "must be a number" for what is none (a bool, a string, None), ``wanted`` for a NaN, an
+    infinity or a number out of range."""
+    value = _scalar(getattr(config, name))
     if is_number(value) and (ok is None or ok(value)):
+        object.__setattr__(config, name, value)
         return
     number = isinstance(value, numbers.Real) and not isinstance(value, bool)
-    raise InputError(f"{wanted if number else 'must be a number'}, got {value!r}", field=name)
+    raise InputError(f"{wanted if number else 'must be a number'}, got {getattr(config, name)!r}", field=name)
 
 
 def _positive_int(value: Any, name: str, allow_zero: bool = False) -> None:
