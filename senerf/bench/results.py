@@ -15,7 +15,7 @@ one line per self-training iteration of an ok run:
 ``views``           training-view indices (from metrics.json); ``n_views``
 ``method``          method name; ``preset``; ``seed``; ``iterations`` (K requested)
 ``iteration``       0 = teacher/baseline, 1.. = students (None on failed lines)
-``psnr`` ``ssim``   floats (test-set means, dB and [0, 1])
+``psnr`` ``ssim``   floats (test-set means, dB and [-1, 1])
 ``lpips`` ``avg``   float, or ``"unavailable"`` (no LPIPS weights); ``reliable_fraction``: float or None
 ``seconds``         this iteration's seconds; ``seconds_cumulative``: sum over iterations 0..this one
 ``run_seconds``     wall clock of the whole ``senerf-fit`` process (start-up and I/O included)
@@ -41,7 +41,7 @@ from ..errors import InputError
 from .specs import RunSpec
 
 __all__ = ["SCHEMA_VERSION", "READABLE_SCHEMAS", "REQUIRED_OK_FIELDS", "result_lines", "validate_line",
-           "append_lines", "load_results", "finished_keys", "latest_ok_lines", "final_ok_lines"]
+           "impossible_value", "append_lines", "load_results", "finished_keys", "latest_ok_lines", "final_ok_lines"]
 
 SCHEMA_VERSION = 1
 #: ``schema`` numbers this version reads (a line without one is read as schema 1); a newer one is refused.
@@ -102,7 +102,7 @@ def _metric(value) -> float | str:
 
 def validate_line(line: dict) -> None:
     """Raise ``ValueError`` naming the first field of an ``"ok"`` line that is missing, mistyped or impossible
-    (:func:`_mistyped` and :func:`_impossible`, which :func:`load_results` applies to the fields a line has)."""
+    (:func:`_mistyped` and :func:`impossible_value`, which :func:`load_results` applies to the fields a line has)."""
     if line.get("status") != "ok":
         for name in ("run_key", "status", "error"):
             if not isinstance(line.get(name), str):
@@ -113,7 +113,7 @@ def validate_line(line: dict) -> None:
             raise ValueError(f"{name}: missing")
     problem = _mistyped(line)
     if problem is None:
-        found = _impossible(line)
+        found = impossible_value(line)
         problem = None if found is None else f"{found[0]}: {found[1]}"
     if problem is not None:
         raise ValueError(problem)
@@ -170,7 +170,7 @@ def _unreadable_schema(line: dict) -> str | None:
     return f"{schema} is not a schema this version of senerf reads (schema {known})"
 
 
-def _impossible(line: dict) -> tuple[str, str] | None:
+def impossible_value(line: dict) -> tuple[str, str] | None:
     """``(field, problem)`` of the first value of a well-typed ``"ok"`` line (:func:`_mistyped` is None) that no
     run can have: a negative ``iteration`` or ``iterations``, an ``iteration`` beyond the run's ``iterations``, a
     negative or non-finite time or peak memory, a PSNR outside [0, 3234] dB or an SSIM outside [-1, 1]; None
@@ -235,7 +235,7 @@ def load_results(path: str | Path) -> tuple[list[dict], int]:
     Raises:
         InputError: a line of a schema this version does not read (:data:`READABLE_SCHEMAS`), or an "ok" line
             with a value no run can have (a negative iteration, a negative or non-finite time, a PSNR of 1e308
-            dB; see :func:`_impossible`); one line naming the file, the field, the line number and the run.
+            dB; see :func:`impossible_value`); one line naming the file, the field, the line number and the run.
     """
     name, path = path, Path(path)   # errors name the file as given
     if not path.exists():
@@ -258,7 +258,7 @@ def load_results(path: str | Path) -> tuple[list[dict], int]:
                 if _mistyped(rec) is not None:   # would crash the tables, or count a run as done on a made-up figure
                     bad += 1
                     continue
-                impossible = _impossible(rec)
+                impossible = impossible_value(rec)
                 if impossible is not None:   # a made-up figure: refused, not skipped, so no table silently lacks it
                     raise _line_error(name, number, rec, *impossible)
                 records.append(rec)

@@ -17,7 +17,7 @@ from typing import Callable
 from .execute import RunnerConfig, execute_run
 from .executors import Executor
 from .machine import git_commit
-from .results import _impossible, append_lines, finished_keys, load_results, result_lines
+from .results import append_lines, finished_keys, impossible_value, load_results, result_lines
 from .specs import RunSpec
 
 __all__ = ["BenchOutcome", "pending_specs", "dry_run_lines", "run_benchmark"]
@@ -80,8 +80,8 @@ def run_benchmark(specs: list[RunSpec], executor: Executor, results_path: str | 
     ok = failed = 0
     for fut in cf.as_completed(futures):
         spec = futures[fut]
-        outcome = _refuse_impossible(_outcome_of(fut, spec), spec, commit, bench_command)
-        append_lines(results_path, result_lines(spec, outcome, commit, bench_command))
+        outcome, lines = _lines_of(_outcome_of(fut, spec), spec, commit, bench_command)
+        append_lines(results_path, lines)
         if outcome["status"] == "ok":
             ok += 1
             final = outcome["metrics"]["iterations"][-1]
@@ -94,18 +94,22 @@ def run_benchmark(specs: list[RunSpec], executor: Executor, results_path: str | 
     return BenchOutcome(skipped, ok, failed)
 
 
-def _refuse_impossible(outcome: dict, spec: RunSpec, commit: str, bench_command: list[str]) -> dict:
-    """``outcome``, or a failed one when its lines would hold a value no run can have (a fit command's negative
-    seconds, say): the results file would be refused by every later command, so the run fails and is retried."""
-    if outcome["status"] != "ok":
-        return outcome
-    for line in result_lines(spec, outcome, commit, bench_command):
-        found = _impossible(line)
-        if found is not None:
-            error = f"metrics.json: iteration {line['iteration']}: {found[0]}: {found[1]}"
-            return {**outcome, "status": "failed", "error": error, "returncode": outcome.get("returncode"),
-                    "log_tail": outcome.get("log_tail", "")}
-    return outcome
+def _lines_of(outcome: dict, spec: RunSpec, commit: str, bench_command: list[str]) -> tuple[dict, list[dict]]:
+    """``(outcome, its results lines)``; an ok outcome whose lines would hold a value no run can have (a fit
+    command's negative seconds, say: :func:`impossible_value`) becomes a failed one, retried by the next
+    invocation, since every later command would refuse the results file."""
+    lines = result_lines(spec, outcome, commit, bench_command)
+    found = next(((line, problem) for line in lines if (problem := impossible_value(line)) is not None), None)
+    if outcome["status"] != "ok" or found is None:
+        return outcome, lines
+    line, (field, problem) = found
+    source = "the run's" if field in _MEASURED_BY_DRIVER else f"metrics.json: iteration {line['iteration']}:"
+    outcome = {**outcome, "status": "failed", "error": f"{source} {field}: {problem}"}
+    return outcome, result_lines(spec, outcome, commit, bench_command)
+
+
+#: Fields of a results line that the driver measures (the rest come from the fit's metrics.json).
+_MEASURED_BY_DRIVER = ("run_seconds", "peak_memory_mib")
 
 
 def _outcome_of(fut: cf.Future, spec: RunSpec) -> dict:
