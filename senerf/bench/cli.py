@@ -233,10 +233,10 @@ def _only_torn_lines(path: Path) -> bool:
     return True
 
 
-def _read_results(path: Path | str, flag: str | None = None) -> tuple[list[dict], int]:
+def _read_results(path: Path | str, flag: str | None = None, skipped: list | None = None) -> tuple[list[dict], int]:
     """:func:`load_results`, with a file that cannot be read as an :class:`InputError`."""
     try:
-        return load_results(path)
+        return load_results(path, skipped)
     except OSError as exc:
         hint = f"; choose another {flag}" if flag else ""
         raise InputError(f"cannot read ({exc.strerror or exc}){hint}", file=path) from None
@@ -249,12 +249,15 @@ def _load(path: str, needs: tuple = ()) -> list[dict]:
     first line lacking one named."""
     if not Path(path).is_file():
         raise InputError("results file not found", file=path)
-    records, bad = _read_results(path)
+    skipped = []
+    records, bad = _read_results(path, skipped=skipped)
     if bad and not records:
         raise InputError(f"no line could be read ({bad} unparseable line(s)); not a senerf-bench results file?",
                          file=path)
     if bad:
-        print(f"senerf-bench: warning: skipped {bad} unparseable line(s) in {path}", file=sys.stderr)
+        (number, why), more = skipped[0], (f"; {bad - 1} more" if bad > 1 else "")
+        print(f"senerf-bench: warning: skipped {bad} unparseable line(s) in {path} (line {number}: {why}{more})",
+              file=sys.stderr)
     for r in records:
         missing = [name for name in needs if name not in r] if r.get("status") == "ok" else []
         if missing:

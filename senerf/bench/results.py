@@ -225,12 +225,13 @@ def _ends_with_newline(path: Path) -> bool:
 _OK_FIELDS = frozenset({"scene", "protocol", "method", "preset", "seed", "iteration", "psnr"})
 
 
-def load_results(path: str | Path) -> tuple[list[dict], int]:
+def load_results(path: str | Path, skipped: list | None = None) -> tuple[list[dict], int]:
     """All parseable lines of a results file, and the number of lines skipped as unparseable (not UTF-8,
     not JSON, not a results line, an "ok" line without the fields every finished line carries, or one with a
     field of the wrong type: a string seed, a non-finite PSNR; see :func:`validate_line`).
 
-    A missing file is an empty result (a fresh benchmark).
+    A missing file is an empty result (a fresh benchmark).  ``skipped``, when given, receives
+    ``(line number, why)`` for each skipped line.
 
     Raises:
         InputError: a line of a schema this version does not read (:data:`READABLE_SCHEMAS`), or an "ok" line
@@ -249,22 +250,32 @@ def load_results(path: str | Path) -> tuple[list[dict], int]:
             try:
                 rec = json.loads(raw.decode("utf-8"))
             except (UnicodeDecodeError, json.JSONDecodeError):
-                bad += 1
-                continue
+                rec = None
             unreadable = _unreadable_schema(rec) if isinstance(rec, dict) else None
             if unreadable is not None:   # before the shape checks: a newer schema may have renamed any field
                 raise _line_error(name, number, rec, "schema", unreadable)
-            if isinstance(rec, dict) and "run_key" in rec and (rec.get("status") != "ok" or _OK_FIELDS <= rec.keys()):
-                if _mistyped(rec) is not None:   # would crash the tables, or count a run as done on a made-up figure
-                    bad += 1
-                    continue
-                impossible = impossible_value(rec)
-                if impossible is not None:   # a made-up figure: refused, not skipped, so no table silently lacks it
-                    raise _line_error(name, number, rec, *impossible)
-                records.append(rec)
-            else:
+            why = _unparseable(rec)   # mistyped lines would crash the tables, or count a run done on a made-up figure
+            if why is not None:
                 bad += 1
+                if skipped is not None:
+                    skipped.append((number, why))
+                continue
+            impossible = impossible_value(rec)
+            if impossible is not None:   # a made-up figure: refused, not skipped, so no table silently lacks it
+                raise _line_error(name, number, rec, *impossible)
+            records.append(rec)
     return records, bad
+
+
+def _unparseable(rec) -> str | None:
+    """Why a decoded line (None: not UTF-8 JSON) is no results line :func:`load_results` can use, or None."""
+    if rec is None:
+        return "not JSON"
+    if not isinstance(rec, dict) or "run_key" not in rec:
+        return "not a results line (no run_key)"
+    if rec.get("status") == "ok" and not _OK_FIELDS <= rec.keys():
+        return f"an ok line without {sorted(_OK_FIELDS - rec.keys())[0]}"
+    return _mistyped(rec)
 
 
 def _line_error(path: str | Path, number: int, line: dict, field: str, problem: str) -> InputError:

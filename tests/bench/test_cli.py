@@ -304,6 +304,18 @@ def test_mistyped_lines_are_skipped_with_a_warning_not_crashed_on_or_counted(tmp
     assert main(["summarize", str(results)]) == 0
     captured = capsys.readouterr()
     assert f"skipped {len(bad_values)} unparseable line(s)" in captured.err and "20.00" in captured.out
+    # the first one named, with why (at 0b7a241 only the count was said)
+    assert f"(line 2: seed: str is not int; {len(bad_values) - 1} more)" in captured.err
+    skipped = []
+    load_results(results, skipped)
+    assert [n for n, _ in skipped] == list(range(2, 2 + len(bad_values)))
+    assert skipped[6] == (8, "psnr: str is not float/int") and skipped[10] == (12, "psnr: inf is not a finite number")
+    results.write_text('{"no": "run_key"}\n[1]\n{torn\n' + json.dumps({"run_key": "k", "status": "ok"}) + "\n"
+                       + _FINISHED_LINE)
+    skipped = []
+    load_results(results, skipped)
+    assert skipped == [(1, "not a results line (no run_key)"), (2, "not a results line (no run_key)"),
+                       (3, "not JSON"), (4, "an ok line without iteration")]   # the first missing, by name
 
 
 def test_a_report_or_plot_over_its_own_results_file_is_refused(tmp_path, capsys):

@@ -132,7 +132,8 @@ def test_plot_refuses_an_absurd_psnr_instead_of_overflowing(tmp_path, capsys):
     path = _results(tmp_path, psnr=math.inf)
     assert "Infinity" in path.read_text()
     assert main(["plot", str(path), "--out-dir", str(tmp_path / "p")]) == 0
-    assert capsys.readouterr().err == f"senerf-bench: warning: skipped 1 unparseable line(s) in {path}\n"
+    assert capsys.readouterr().err == (f"senerf-bench: warning: skipped 1 unparseable line(s) in {path} (line 2: psnr: "
+                                       "inf is not a finite number)\n")
 
 
 def test_validate_line_names_an_impossible_value():

@@ -592,7 +592,7 @@ def test_a_results_file_that_cannot_be_read_is_one_line_naming_it(monkeypatch, b
     results = tmp_path / "r.jsonl"
     results.write_text(json.dumps(_FINISHED) + "\n")
 
-    def unreadable(path):
+    def unreadable(path, skipped=None):
         raise PermissionError(errno.EACCES, "Permission denied", str(path))
     monkeypatch.setattr(cli, "load_results", unreadable)
     assert main(["summarize", str(results)]) == 2
