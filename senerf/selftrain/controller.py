@@ -48,7 +48,7 @@ import torch
 
 from .. import geometry
 from ..data import changed_files, run_file_digests
-from ..data.fewshot import explicit_n_views
+from ..data.fewshot import DEFAULT_N_VIEWS, explicit_n_views
 from ..errors import InputError
 from ..train import (atomic_write_text, build_field, camera_rays, config_to_dict, differences_text, eval_images,
                      evaluate, finished_metrics, iteration_row, load_checkpoint, resume_host_line,
@@ -630,8 +630,18 @@ def _check_settings(path: Path, state: dict, settings: dict) -> None:
         if diffs:
             raise InputError(f"output folder holds a run with different settings ({differences_text(diffs)}); "
                              f"{hint}", file=path)
-    elif state.get("fingerprint") not in _run_fingerprints(settings):
+    elif state.get("fingerprint") not in _old_fingerprints(settings):
         raise InputError(f"output folder holds a run with different settings; {hint}", file=path)
+
+
+def _old_fingerprints(settings: dict) -> tuple[str, ...]:
+    """:func:`_run_fingerprints` of ``settings``, and, where ``config.n_views`` is recorded as not given, of the
+    same settings with the protocol's default count (what ``--n-views`` at its default hashed before)."""
+    config = settings.get("config", {})
+    default = DEFAULT_N_VIEWS.get(config.get("protocol")) if isinstance(config.get("protocol"), str) else None
+    if config.get("n_views", 0) is not None or default is None:
+        return _run_fingerprints(settings)
+    return _run_fingerprints(settings) + _run_fingerprints({**settings, "config": {**config, "n_views": default}})
 
 
 def _check_scene_files(record: Path, now: dict | None) -> None:

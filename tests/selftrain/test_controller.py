@@ -860,3 +860,19 @@ def test_a_run_whose_scene_files_changed_is_not_resumed(tiny_scene, tmp_path, mo
     record = out / "checkpoints" / "scene_files.json"
     run(the_scene=in_memory)
     assert (out / "checkpoints" / "teacher.pt").exists() and not record.exists()
+
+
+def test_a_fingerprint_checkpoint_of_n_views_at_its_default_resumes():
+    # Catches: a checkpoint from before settings_json whose run was made with `--n-views 3` (the llff default;
+    # its fingerprint hashed 3) refused now that senerf-fit records the default count as None (so at a3b77a4).
+    from senerf.selftrain.controller import _CKPT_FORMAT, _check_settings, _fingerprint
+
+    recorded = dict(config={"protocol": "llff", "n_views": 3, "selftrain": {"features": "vgg19"}}, scene="fern",
+                    train=[1, 2, 3], test=[0], size=[4, 4])
+    state = {"format": _CKPT_FORMAT, "fingerprint": _fingerprint(recorded)}
+    for n_views in (3, None):   # the count given as it was, and as senerf-fit records it now
+        _check_settings(Path("teacher.pt"), state, {**recorded, "config": {**recorded["config"], "n_views": n_views}})
+    for n_views in (2, 4):
+        with pytest.raises(InputError, match="different settings"):
+            _check_settings(Path("teacher.pt"), state, {**recorded, "config": {**recorded["config"],
+                                                                                "n_views": n_views}})
