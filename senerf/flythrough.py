@@ -533,18 +533,29 @@ def write_frames(out: Path, frames: dict, record: dict, fps: float, overwrite: b
 
 
 def _fill(out: Path, tmp: Path) -> None:
-    """Move ``tmp``'s files into the empty folder ``out``, ``path.json`` last; an interrupt (Ctrl-C, SIGTERM)
-    meanwhile moves them back, so ``out`` is left empty, as it was."""
+    """Move ``tmp``'s files into the folder ``out`` (empty, or holding the files an interrupted fill moved),
+    ``path.json`` last; an interrupt (Ctrl-C, SIGTERM) meanwhile moves back what this call moved.  A move
+    across file systems (``out`` a mount point) copies, then deletes; a kill mid-way is finished by
+    :func:`recover_interrupted`."""
     names = sorted(p.name for p in tmp.iterdir() if p.name != _MARKER) + [_MARKER]
     moved = []
     try:
         for name in names:
-            (tmp / name).rename(out / name)
+            shutil.move(tmp / name, out / name)
             moved.append(name)
     except BaseException:
         for name in moved:
-            (out / name).rename(tmp / name)
+            shutil.move(out / name, tmp / name)
         raise
+
+
+def _begun_fill(out: Path, tmp: Path) -> bool:
+    """True when ``tmp``, a complete output (our ``path.json``, no :data:`_PARTIAL`), was being moved into
+    ``out``: a folder (not a link) without ``path.json`` holding only names senerf-render writes."""
+    if not (_is_ours(tmp) and not (tmp / _PARTIAL).exists() and out.is_dir() and not out.is_symlink()):
+        return False
+    names = [p.name for p in out.iterdir()]
+    return _MARKER not in names and all(_OUR_FILES.fullmatch(n) for n in names)
 
 
 def _missing_folders(folder: Path) -> list[Path]:
@@ -585,7 +596,8 @@ def recover_interrupted(out: Path) -> list[str]:
     * ``.NAME.old-PID``, the earlier output moved aside for ``--overwrite``: renamed back to ``out`` when the
       kill came before the new output took its place, removed when it came after (``out`` is then whole).
     * ``.NAME.PID.xxxxxxxx``, a temporary folder holding :data:`_PARTIAL` (or, once complete, our
-      ``path.json``): removed.
+      ``path.json``): removed; a complete one whose files were being moved into the user's empty folder
+      ``out`` (:func:`_fill`) has the rest moved in first.
 
     Only folders of processes that no longer exist are touched, and only those that senerf-render marked.
     """
@@ -607,6 +619,10 @@ def recover_interrupted(out: Path) -> list[str]:
             else:
                 entry.rename(out)
                 done.append(f"restored {out}, the earlier output an interrupted {PROG} had moved aside")
+        elif tmp and _begun_fill(out, entry):
+            _fill(out, entry)
+            shutil.rmtree(entry, ignore_errors=True)
+            done.append(f"finished {out}, which an interrupted {PROG} had begun to fill")
         elif tmp and ((entry / _PARTIAL).is_file() or _is_ours(entry)):
             shutil.rmtree(entry, ignore_errors=True)
             done.append(f"removed {entry.name}, a partial folder an interrupted {PROG} left")
@@ -642,9 +658,17 @@ def _is_ours(folder: Path) -> bool:
         return False
 
 
+def _absolute(out: Path) -> Path:
+    """``out`` with its folder resolved (links followed, so ``link/..`` is the link target's parent) and its
+    own name kept (a link named there stays a link); ``.`` and ``..`` resolved whole."""
+    if out.name in ("", ".", ".."):
+        return Path(os.path.realpath(out))
+    return Path(os.path.realpath(out.parent)) / out.name
+
+
 def _empty_folder(path: Path) -> bool:
-    """True for an empty folder that is not a symbolic link (:func:`write_frames` fills it; a link is refused as
-    before, without ``--overwrite``)."""
+    """True for an empty folder that is not a symbolic link (:func:`write_frames` fills it; a link is refused,
+    with or without ``--overwrite``, unless it leads to an earlier senerf-render output)."""
     return path.is_dir() and not path.is_symlink() and not any(path.iterdir())
 
 
@@ -710,7 +734,7 @@ def _run(args, argv: list[str]) -> int:
     if args.elevation is not None and args.path not in (None, "orbit"):
         raise InputError("applies to --path orbit only", field="--elevation")
     if args.out is not None:
-        args.out = Path(os.path.abspath(args.out))   # `--out .` has no name to make a sibling of
+        args.out = _absolute(args.out)   # `--out .` has no name to make a sibling of
         _check_out(args.out, args.overwrite)   # before loading anything
     run = load_fitted_run(args.run, args.iteration, device)
     path = args.path or ("spiral" if run.scene.kind == "forward_facing" else "orbit")

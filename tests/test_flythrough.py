@@ -228,14 +228,14 @@ def test_an_interrupt_while_filling_an_empty_folder_leaves_it_empty(tmp_path, mo
     tmp.mkdir()
     for name in ("rgb_000.png", "rgb_001.png", "path.json"):
         (tmp / name).write_text(name)
-    real, calls = Path.rename, []
+    real, calls = shutil.move, []
 
-    def interrupted(self, target):
-        calls.append(self.name)
+    def interrupted(source, target):
+        calls.append(Path(source).name)
         if len(calls) == 2:
             raise KeyboardInterrupt
-        return real(self, target)
-    monkeypatch.setattr(Path, "rename", interrupted)
+        return real(source, target)
+    monkeypatch.setattr(shutil, "move", interrupted)
     with pytest.raises(KeyboardInterrupt):
         fly._fill(out, tmp)
     monkeypatch.undo()
@@ -701,6 +701,37 @@ def test_what_a_killed_render_left_is_tidied_and_the_earlier_output_restored(tmp
     assert (tmp_path / f".orbit_iter1.old-{dead}").exists()
 
 
+def test_a_fill_of_an_empty_folder_killed_midway_is_finished_by_the_next_render(tmp_path):
+    # Catches: the dead render's temporary folder (holding path.json and the frames not yet moved) removed, which
+    # left the user's folder half filled and refused by every later render (second review of 281138d).
+    from senerf.errors import InputError
+    from senerf.flythrough import _check_out, write_frames
+
+    rgb = np.zeros((2, 4, 4, 3), np.uint8)
+    whole = write_frames(tmp_path / "whole", dict(rgb=rgb, depth=rgb), {"senerf_render": "x"}, fps=10.0)
+    names = sorted(p.name for p in whole.iterdir())
+    mine = tmp_path / "mine"
+    mine.mkdir()
+    dead = _dead_pid()
+    tmp = whole.rename(tmp_path / f".mine.{dead}.abc_1234")   # complete, no _PARTIAL: being moved into mine
+    for name in names[:3]:
+        (tmp / name).rename(mine / name)
+    assert "path.json" not in names[:3]
+    with pytest.warns(UserWarning, match=f"finished {mine}, which an interrupted senerf-render had begun to fill"):
+        _check_out(mine, overwrite=True)
+    assert sorted(p.name for p in mine.iterdir()) == names and not tmp.exists()
+    # a folder holding a file of the user's is not taken for a fill begun: the temporary folder is only removed
+    other = tmp_path / "other"
+    other.mkdir()
+    (other / "notes.txt").write_text("mine")
+    again = write_frames(tmp_path / "again", dict(rgb=rgb, depth=rgb), {"senerf_render": "x"}, fps=10.0)
+    again.rename(tmp_path / f".other.{dead}.abc_1234")
+    with pytest.warns(UserWarning, match="removed .other"):
+        with pytest.raises(InputError, match="exists; use --overwrite"):
+            _check_out(other, overwrite=False)
+    assert sorted(p.name for p in other.iterdir()) == ["notes.txt"]
+
+
 def test_a_scene_whose_files_changed_since_the_fit_is_rendered_with_a_warning(runs, tmp_path, capsys):
     # Before, senerf-render read the scene as it is now without a word, so a pose edited after the fit put the
     # path in another frame than the field's (so at ce8cdd5).
@@ -1018,3 +1049,16 @@ def test_files_put_into_a_record_survive_its_removal(runs, tmp_path, capsys, mon
     spy.stop_at = None
     assert main([str(runs.st), "--out", str(out), "--frames", "2", "--quiet"]) == 0
     assert sorted(p.name for p in frames_record(out).iterdir()) == ["notes.txt"]   # the frames and mark gone
+
+
+def test_out_is_made_absolute_with_its_folder_resolved_and_its_name_kept(tmp_path, monkeypatch):
+    # Catches: os.path.abspath's lexical `..` (link/.. taken for the current folder, second review of 281138d), or
+    # a link given as --out resolved to its target (a link is refused, not written through).
+    from senerf.flythrough import _absolute
+
+    (tmp_path / "target" / "sub").mkdir(parents=True)
+    (tmp_path / "link").symlink_to(tmp_path / "target" / "sub")
+    monkeypatch.chdir(tmp_path)
+    assert _absolute(Path("link/..")) == tmp_path / "target"
+    assert _absolute(Path("link")) == tmp_path / "link"
+    assert _absolute(Path(".")) == tmp_path and _absolute(Path("a/b")) == tmp_path / "a" / "b"
