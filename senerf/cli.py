@@ -367,13 +367,14 @@ def _own_outputs(out: Path) -> list[Path]:
 def _refuse_out_among_inputs(out: Path, scene_dir: Path, image_paths) -> None:
     """:class:`InputError` when ``out`` is the scene folder or a folder of its photos (with ``--overwrite`` the
     run's files would land among them, and the next load would count them); a new folder inside is fine."""
-    inputs = [(scene_dir, "the scene folder")]
-    inputs += [(folder, "a folder of the scene's photos") for folder in sorted({Path(p).parent for p in image_paths})]
+    photo_folders = {Path(p).parent for p in image_paths}   # and the other resolutions' (LLFF's images_N)
+    photo_folders |= {p for p in scene_dir.glob("images*") if p.is_dir()}
+    inputs = [(scene_dir, "the scene folder")] + [(f, "a folder of the scene's photos") for f in sorted(photo_folders)]
     for folder, what in inputs:
         try:
             same = os.path.samefile(out, folder)
         except OSError:   # out not there yet (or unresolvable, a link loop: output_folder names that later)
-            return
+            continue
         if same:
             raise InputError(f"is {what}; choose another --out (a new folder inside it is fine)", file=out)
 

@@ -211,6 +211,9 @@ def run_command(prog: str, body, interrupted: str) -> int:
             warnings.showwarning = one_line
             return body()
     except InputError as exc:
+        if _interrupt_behind(exc):   # a cleanup's refusal (a folder it could not restore) while stopping
+            print(f"{prog}: interrupted ({interrupted}); while stopping: {exc}", file=sys.stderr)
+            return 130
         print(f"{prog}: error: {exc}", file=sys.stderr)
         return 2
     except SystemExit as exc:  # --help / --version

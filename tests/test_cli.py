@@ -489,6 +489,26 @@ def test_out_the_scene_folder_itself_is_refused(tiny_scene, tmp_path, capsys):
     assert str(loop) in _one_error_line(capsys)
 
 
+def test_out_a_folder_of_another_resolutions_photos_is_refused(tmp_path):
+    # Catches: only the folders of the photos loaded this time checked (an LLFF fit at --downscale 2 reads
+    # images_2/; --out SCENE/images --overwrite then put summary.png among the full-size photos; second review).
+    from senerf.cli import _refuse_out_among_inputs
+
+    scene = tmp_path / "fern"
+    for name in ("images", "images_2", "images_8"):
+        (scene / name).mkdir(parents=True)
+        (scene / name / "a.png").write_bytes(b"")
+    (scene / "fits").mkdir()
+    used = [scene / "images_2" / "a.png"]
+    for name in ("images", "images_2", "images_8"):
+        with pytest.raises(InputError, match="is a folder of the scene's photos; choose another --out"):
+            _refuse_out_among_inputs(scene / name, scene, used)
+    with pytest.raises(InputError, match="is the scene folder"):
+        _refuse_out_among_inputs(scene / "fits" / "..", scene, used)
+    for fine in (scene / "fits", scene / "new", tmp_path):
+        assert _refuse_out_among_inputs(fine, scene, used) is None
+
+
 def test_negative_views_get_the_range_message_and_a_file_is_not_missing(tiny_scene, tmp_path, capsys):
     # `--views -1,0` gave argparse's "expected one argument" (so at ed16e9a)
     assert main([str(tiny_scene), "--out", str(tmp_path / "o"), *SMALL, "--views", "-1,0"]) == 2

@@ -111,6 +111,15 @@ def test_run_command_maps_every_way_out_to_its_exit_status(capsys):
     assert run_command("prog", interrupted_import, "rerun it") == 130
     assert capsys.readouterr().err == ("prog: interrupted (rerun it); while stopping: ImportError: cannot import name "
                                        "'linalg' from partially initialized module 'numpy'\n")
+
+    def refused_while_stopping():   # a cleanup's InputError (it could not restore a folder) while stopping
+        try:
+            raise KeyboardInterrupt
+        finally:
+            raise InputError("cannot write there (Read-only file system)", file="/o")
+    assert run_command("prog", refused_while_stopping, "rerun it") == 130
+    assert capsys.readouterr().err == ("prog: interrupted (rerun it); while stopping: /o: cannot write there "
+                                       "(Read-only file system)\n")
     looped = RuntimeError("a")   # a chain that loops ends the search
     looped.__context__ = ValueError("b")
     looped.__context__.__context__ = looped

@@ -191,3 +191,12 @@ def test_zero_dimensional_arrays_and_tensors_are_taken_as_their_numbers():
         TrainConfig(tv_weight=np.array([0.1]))   # one value, but not a 0-d one
     with pytest.raises(InputError, match="^view_dependent: must be True or False"):
         ModelConfig(view_dependent=torch.tensor(1))
+
+
+def test_a_zero_dimensional_value_without_data_is_refused_in_one_line():
+    # Catches: item() of a tensor on the "meta" device (no data) escaping as a RuntimeError (an internal error)
+    # instead of the setting's one-line refusal (second review of 8fa9547).
+    import torch
+
+    with pytest.raises(InputError, match="^lr: must be a number, got "):
+        TrainConfig(lr=torch.tensor(0.01, device="meta"))

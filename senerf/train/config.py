@@ -261,7 +261,10 @@ def _scalar(value: Any) -> Any:
     """A 0-d array's or tensor's plain Python value (``item()``: a bool stays a bool); anything else, NumPy
     scalars included, as it is."""
     if not isinstance(value, numbers.Number) and getattr(value, "ndim", None) == 0 and hasattr(value, "item"):
-        return value.item()
+        try:
+            return value.item()
+        except Exception:   # a tensor without data (device "meta"), say: as it is, refused by the caller
+            return value
     return value
 
 

@@ -316,6 +316,14 @@ def test_mistyped_lines_are_skipped_with_a_warning_not_crashed_on_or_counted(tmp
     load_results(results, skipped)
     assert skipped == [(1, "not a results line (no run_key)"), (2, "not a results line (no run_key)"),
                        (3, "not JSON"), (4, "an ok line without iteration")]   # the first missing, by name
+    # lines json.loads refuses with a plain ValueError or a RecursionError, not a JSONDecodeError (an internal
+    # error at 5eb7a2a), a JSON null, and bytes that are not UTF-8
+    results.write_bytes(b"1" * 5000 + b"\n" + b"[" * 100000 + b"\n" + b"null\n\xd0\xff\n"
+                        + _FINISHED_LINE.encode())
+    skipped = []
+    records, bad = load_results(results, skipped)
+    assert len(records) == 1 and bad == 4
+    assert skipped == [(1, "not JSON"), (2, "not JSON"), (3, "not a results line (no run_key)"), (4, "not UTF-8")]
 
 
 def test_a_report_or_plot_over_its_own_results_file_is_refused(tmp_path, capsys):
