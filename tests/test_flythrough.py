@@ -324,7 +324,8 @@ def _nan_field(state):
 
 
 @pytest.mark.parametrize("file, edit, needle", [
-    ("run.json", lambda r: r["model"].update(occupancy_resolution=32), "iter_0_train.pt: its occupancy grid does not fit"),
+    ("run.json", lambda r: r["model"].update(occupancy_resolution=32),
+     "iter_0_train.pt: its occupancy grid does not fit"),
     ("run.json", lambda r: r["model"].update(resolution="8"), "run.json: model.resolution: must be an integer"),
     ("run.json", lambda r: r["model"].update(field="zzz"), "run.json: model.field: must be one of"),
     ("run.json", lambda r: r["model"].update(bogus=1), "run.json: model: not a model of this senerf version"),
@@ -570,7 +571,8 @@ def test_a_path_that_would_not_fit_in_memory_is_refused_at_80_percent(monkeypatc
     monkeypatch.setattr(os, "sysconf", lambda name: pages[os.sysconf_names[name] if isinstance(name, str) else name])
     k = types.SimpleNamespace(width=1024, height=1024)   # 32 bytes a pixel: 32 MiB a frame
     _check_memory([k] * 25)                              # 800 MiB < 0.8 GiB = 819.2 MiB
-    with pytest.raises(InputError, match=r"26 frames at 1024x1024 need about 0\.8 GiB of memory, this machine has 1\.0"):
+    with pytest.raises(InputError,
+                       match=r"26 frames at 1024x1024 need about 0\.8 GiB of memory, this machine has 1\.0"):
         _check_memory([k] * 26)                          # 832 MiB = 0.8125 GiB
 
 

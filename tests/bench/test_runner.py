@@ -196,3 +196,22 @@ def test_a_run_reporting_impossible_values_fails_and_the_file_stays_readable(ble
     assert all(r["error"] == "metrics.json: iteration 0: seconds: -1.0 is not a finite number >= 0" for r in records)
     second = _run(specs, tmp_path, fake_fit_command)   # retried, and filed
     assert (second.ok, second.failed, second.skipped) == (2, 0, 0)
+
+
+def test_a_driver_measured_value_no_run_can_have_is_named_as_the_runs():
+    # Catches: the driver's own measures (run_seconds, peak_memory_mib) reported as coming from metrics.json.
+    from senerf.bench.runner import _lines_of
+    from senerf.bench.specs import RunSpec
+
+    spec = RunSpec("/d/lego", "lego", "synthetic-extreme3@100", "baseline", "fast", 0, 0)
+    metrics = {"iterations": [{"iteration": 0, "psnr": 20.0, "ssim": 0.5, "seconds": 1.0}], "train_views": [0, 1, 51],
+               "test_views": [0], "resolution": [100, 100]}
+    ok = {"status": "ok", "metrics": metrics, "run_seconds": 3.0, "peak_memory_mib": 100.0, "returncode": 0}
+    outcome, lines = _lines_of(ok, spec, "c0", ["t"])
+    assert outcome is ok and len(lines) == 1 and lines[0]["status"] == "ok"
+    outcome, lines = _lines_of({**ok, "run_seconds": -1.0}, spec, "c0", ["t"])
+    assert outcome["status"] == "failed" and [line["status"] for line in lines] == ["failed"]
+    assert outcome["error"] == "the run's run_seconds: -1.0 is not a finite number >= 0"
+    outcome, _ = _lines_of({**ok, "metrics": {**metrics, "iterations": [{**metrics["iterations"][0], "ssim": 2.0}]}},
+                           spec, "c0", ["t"])
+    assert outcome["error"] == "metrics.json: iteration 0: ssim: 2.0 is outside [-1, 1]"

@@ -92,7 +92,8 @@ def test_tiny_end_to_end_with_resume(tiny_scene, tmp_path, monkeypatch):
 
     scene = tiny_scene
     train_idx, test_idx = scene.splits["train"][:3], scene.splits["test"]
-    model = choose_model(scene, train_idx, {"n_samples": 16, "resolution": 32, "occupancy_resolution": 16}, echo=lambda s: None)
+    model = choose_model(scene, train_idx, {"n_samples": 16, "resolution": 32, "occupancy_resolution": 16},
+                         echo=lambda s: None)
     tcfg = TrainConfig(steps=8, batch_rays=128, warmup_steps=2, checkpoint_every=0, occupancy_warmup=4,
                        occupancy_every=4)
     out = tmp_path / "run"
