@@ -84,7 +84,8 @@ class TrainConfig:
     Raises:
         InputError: ``field`` names the setting: the step counts, ``batch_rays`` and ``seed`` integers (not
             bools; NumPy integers too), ``lr``, ``lr_final_factor`` and ``tv_weight`` finite numbers in range
-            (:func:`senerf.errors.is_number`: not bools, not strings; NumPy scalars too, kept as given).
+            (:func:`senerf.errors.is_number`: not bools, not strings; NumPy scalars kept as given, 0-d arrays
+            and tensors as their plain numbers).
     """
 
     steps: int = 1000
@@ -151,7 +152,8 @@ class ModelConfig:
     Raises:
         InputError: ``field`` names the setting: ``aabb``'s six values, ``ndc_near``, ``near``, ``far``,
             ``density_shift``, ``occupancy_threshold`` and ``occupancy_decay`` finite numbers in range
-            (:func:`senerf.errors.is_number`: not bools, not strings; NumPy scalars too, kept as given);
+            (:func:`senerf.errors.is_number`: not bools, not strings; NumPy scalars kept as given, 0-d arrays
+            and tensors as their plain numbers);
             ``resolution``, ``n_features``, ``n_samples``, ``hidden``, ``occupancy_resolution`` and each of
             ``multires`` integers (not bools; NumPy integers too), in range; ``ndc`` and ``view_dependent``
             bools (NumPy's too, kept as plain bools).
