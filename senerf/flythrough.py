@@ -371,6 +371,14 @@ def _open_record(record: Path) -> int:
     return 0
 
 
+def _landed(out: Path, path_record: dict) -> bool:
+    """True when ``out`` holds this render's ``path.json`` (written last, so the output is whole)."""
+    try:
+        return json.loads((out / _MARKER).read_text()) == json.loads(json.dumps(path_record))
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError):
+        return False
+
+
 def _close_record(record: Path, landed: bool) -> None:
     """Remove the frames record once the output ``landed``, or when it holds no frame (an interrupt before the
     first one): only the files senerf-render wrote there, then the folder when nothing else is left."""
@@ -538,14 +546,17 @@ def _fill(out: Path, tmp: Path) -> None:
     across file systems (``out`` a mount point) copies, then deletes; a kill mid-way is finished by
     :func:`recover_interrupted`."""
     names = sorted(p.name for p in tmp.iterdir() if p.name != _MARKER) + [_MARKER]
-    moved = []
+    begun = []   # recorded before each move: an interrupt inside one (a copy across file systems) is undone too
     try:
         for name in names:
+            begun.append(name)
             shutil.move(tmp / name, out / name)
-            moved.append(name)
     except BaseException:
-        for name in moved:
-            shutil.move(out / name, tmp / name)
+        for name in begun:
+            if (tmp / name).exists():   # not moved, or copied and not yet deleted: the copy in out goes
+                (out / name).unlink(missing_ok=True)
+            else:
+                shutil.move(out / name, tmp / name)
         raise
 
 
@@ -756,6 +767,7 @@ def _run(args, argv: list[str]) -> int:
     _check_memory(intrinsics, renders=2 if args.compare else 1)
     created = _missing_folders(out.parent)   # removed again unless the render lands (Ctrl-C, bad input)
     record = frames_record(out)
+    path_record = None   # what path.json will hold, once known
     try:
         shutil.rmtree(_temp_sibling(out))   # the folder can be written: found out before rendering, not after
         found = _open_record(record)
@@ -788,6 +800,10 @@ def _run(args, argv: list[str]) -> int:
         gifs = "rgb.gif, depth.gif and compare.gif" if compare is not None else "rgb.gif and depth.gif"
         print(f"{PROG}: {len(c2w)} frames, {gifs} in {written}")
     except KeyboardInterrupt:   # say where the frames wait (run_command then prints the interrupt line)
+        if path_record is not None and _landed(out, path_record):   # the interrupt came after the output landed
+            _close_record(record, landed=True)
+            print(f"{PROG}: {len(c2w)} frames in {out} (the interrupt came once they were written)")
+            return 0
         kept = len([p for p in record.glob("*.npz") if _RECORD_FILES.fullmatch(p.name)]) if record.is_dir() else 0
         if kept:
             print(f"{PROG}: {kept} rendered frame{'s' if kept > 1 else ''} kept in {record}", file=sys.stderr)

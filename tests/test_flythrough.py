@@ -243,6 +243,42 @@ def test_an_interrupt_while_filling_an_empty_folder_leaves_it_empty(tmp_path, mo
                                                                                   "rgb_001.png"]
     fly._fill(out, tmp)
     assert sorted(p.name for p in out.iterdir()) == ["path.json", "rgb_000.png", "rgb_001.png"]
+    # an interrupt inside a move across file systems, after the copy and before the delete (the fuzzing helper's
+    # mount point): the copy left in out is removed too (before, it stayed, and every rerun was refused)
+    for name in ("rgb_000.png", "rgb_001.png", "path.json"):
+        (out / name).rename(tmp / name)
+    calls.clear()
+
+    def copied_then_interrupted(source, target):
+        calls.append(Path(source).name)
+        if len(calls) == 2:
+            shutil.copy2(source, target)
+            raise KeyboardInterrupt
+        return real(source, target)
+    monkeypatch.setattr(shutil, "move", copied_then_interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        fly._fill(out, tmp)
+    monkeypatch.undo()
+    assert list(out.iterdir()) == [] and len(list(tmp.iterdir())) == 3
+
+
+def test_an_interrupt_after_the_output_landed_is_a_finished_render(runs, tmp_path, capsys, monkeypatch):
+    # Before, a Ctrl-C after path.json was in place (while the frames record was removed) said "interrupted (no
+    # output written ...)", exit 130, though the output was whole and its rerun was refused (fuzzing helper).
+    import senerf.flythrough as fly
+
+    real, calls = fly._close_record, []
+
+    def interrupted(record, landed):
+        calls.append(landed)
+        if landed and calls.count(True) == 1:
+            raise KeyboardInterrupt
+        return real(record, landed)
+    monkeypatch.setattr(fly, "_close_record", interrupted)
+    out = tmp_path / "late"
+    assert main([str(runs.base), "--out", str(out), "--frames", "2", "--quiet"]) == 0
+    assert f"2 frames in {out} (the interrupt came once they were written)" in capsys.readouterr().out
+    assert (out / "path.json").is_file() and not fly.frames_record(out).exists()
 
 
 def test_out_is_replaced_only_when_it_is_ours_and_never_half_written(runs, tmp_path, capsys, monkeypatch):
