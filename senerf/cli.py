@@ -32,7 +32,7 @@ from senerf.cliargs import (SEED_MAX, THREADS_HELP, OneLineParser, argument_type
 from senerf.errors import InputError
 from senerf.memory import physical_memory_bytes
 
-__all__ = ["main", "build_parser", "parse_views"]
+__all__ = ["main", "console", "build_parser", "parse_views"]
 
 PROG = "senerf-fit"
 _CLI_PROTOCOLS = ("extreme", "spread", "llff", "all", "infonerf4", "random8")
@@ -674,5 +674,13 @@ def main(argv: list[str] | None = None) -> int:
                        "rerun the same command to resume")
 
 
+def console() -> None:
+    """The ``senerf-fit`` console script: :func:`main`, exiting with its status
+    (:func:`senerf.cliargs.console_entry`)."""
+    from senerf.cliargs import console_entry
+
+    console_entry(main)
+
+
 if __name__ == "__main__":  # pragma: no cover
-    sys.exit(main())
+    console()

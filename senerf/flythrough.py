@@ -44,7 +44,7 @@ from senerf.errors import InputError
 from senerf.memory import physical_memory_bytes
 
 __all__ = ["FittedRun", "load_fitted_run", "with_iteration", "path_cameras", "render_frames", "frames_record",
-           "side_by_side", "write_frames", "recover_interrupted", "main", "PATHS"]
+           "side_by_side", "write_frames", "recover_interrupted", "main", "console", "PATHS"]
 
 PROG = "senerf-render"
 #: The camera paths ``senerf-render`` draws.
@@ -827,5 +827,13 @@ def main(argv: list[str] | None = None) -> int:
                        "no output written; the frames rendered so far are kept: rerun the same command to resume")
 
 
+def console() -> None:
+    """The ``senerf-render`` console script: :func:`main`, exiting with its status
+    (:func:`senerf.cliargs.console_entry`)."""
+    from senerf.cliargs import console_entry
+
+    console_entry(main)
+
+
 if __name__ == "__main__":  # pragma: no cover
-    sys.exit(main())
+    console()

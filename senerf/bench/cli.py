@@ -41,7 +41,7 @@ from .runner import dry_run_lines, run_benchmark
 from .specs import PRESETS, expand_specs
 from .summary import aggregate, final_iterations, format_table, preset_label
 
-__all__ = ["main", "build_parser"]
+__all__ = ["main", "console", "build_parser"]
 
 
 REPORT_BEGIN = "<!-- senerf-bench report: BEGIN (generated, do not edit by hand) -->"
@@ -432,5 +432,13 @@ def _cmd_angles(args: argparse.Namespace) -> int:
     return 0
 
 
+def console() -> None:
+    """The ``senerf-bench`` console script: :func:`main`, exiting with its status
+    (:func:`senerf.cliargs.console_entry`)."""
+    from senerf.cliargs import console_entry
+
+    console_entry(main)
+
+
 if __name__ == "__main__":
-    sys.exit(main())
+    console()
