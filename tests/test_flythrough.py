@@ -228,14 +228,23 @@ def test_an_interrupt_while_filling_an_empty_folder_leaves_it_empty(tmp_path, mo
     tmp.mkdir()
     for name in ("rgb_000.png", "rgb_001.png", "path.json"):
         (tmp / name).write_text(name)
-    real, calls = shutil.move, []
+    real = shutil.move
 
-    def interrupted(source, target):
-        calls.append(Path(source).name)
-        if len(calls) == 2:
-            raise KeyboardInterrupt
-        return real(source, target)
-    monkeypatch.setattr(shutil, "move", interrupted)
+    def interrupting_second_move(copy_first: bool):
+        """shutil.move that raises KeyboardInterrupt in its second call (after copying, with ``copy_first``: a
+        move across file systems interrupted before its delete)."""
+        calls = []
+
+        def move(source, target):
+            calls.append(source)
+            if len(calls) == 2:
+                if copy_first:
+                    shutil.copy2(source, target)
+                raise KeyboardInterrupt
+            return real(source, target)
+        return move
+
+    monkeypatch.setattr(shutil, "move", interrupting_second_move(copy_first=False))
     with pytest.raises(KeyboardInterrupt):
         fly._fill(out, tmp)
     monkeypatch.undo()
@@ -247,15 +256,7 @@ def test_an_interrupt_while_filling_an_empty_folder_leaves_it_empty(tmp_path, mo
     # mount point): the copy left in out is removed too (before, it stayed, and every rerun was refused)
     for name in ("rgb_000.png", "rgb_001.png", "path.json"):
         (out / name).rename(tmp / name)
-    calls.clear()
-
-    def copied_then_interrupted(source, target):
-        calls.append(Path(source).name)
-        if len(calls) == 2:
-            shutil.copy2(source, target)
-            raise KeyboardInterrupt
-        return real(source, target)
-    monkeypatch.setattr(shutil, "move", copied_then_interrupted)
+    monkeypatch.setattr(shutil, "move", interrupting_second_move(copy_first=True))
     with pytest.raises(KeyboardInterrupt):
         fly._fill(out, tmp)
     monkeypatch.undo()
