@@ -190,6 +190,14 @@ def _interrupt_behind(exc: BaseException) -> bool:
     return any(isinstance(e, KeyboardInterrupt) for e in _chain(exc))
 
 
+def _one_line(exc: Exception) -> str:
+    """``exc`` in one line: an :class:`InputError`'s own message, else ``Type: message``."""
+    said = " ".join(str(exc).split())
+    if isinstance(exc, InputError):
+        return said
+    return f"{type(exc).__name__}: {said}" if said else type(exc).__name__
+
+
 def console_entry(main) -> NoReturn:
     """Exit with ``main()``'s status, ignoring Ctrl-C once it has returned: the command is done, and an interrupt
     during the interpreter's shutdown would only print the traceback of an ignored KeyboardInterrupt (seen in
@@ -222,12 +230,6 @@ def run_command(prog: str, body, interrupted: str) -> int:
         with warnings.catch_warnings():  # restores warnings.showwarning on exit
             warnings.showwarning = one_line
             return body()
-    except InputError as exc:
-        if _interrupt_behind(exc):   # a cleanup's refusal (a folder it could not restore) while stopping
-            print(f"{prog}: interrupted ({interrupted}); while stopping: {exc}", file=sys.stderr)
-            return 130
-        print(f"{prog}: error: {exc}", file=sys.stderr)
-        return 2
     except SystemExit as exc:  # --help / --version
         return int(exc.code or 0) if isinstance(exc.code, int) or exc.code is None else 2
     except KeyboardInterrupt:
@@ -235,10 +237,11 @@ def run_command(prog: str, body, interrupted: str) -> int:
         return 130
     except Exception as exc:
         if _interrupt_behind(exc):   # named, in case it is a bug of the cleanup rather than the interrupt's
-            said = " ".join(str(exc).split())
-            print(f"{prog}: interrupted ({interrupted}); while stopping: {type(exc).__name__}"
-                  + (f": {said}" if said else ""), file=sys.stderr)
+            print(f"{prog}: interrupted ({interrupted}); while stopping: {_one_line(exc)}", file=sys.stderr)
             return 130
+        if isinstance(exc, InputError):
+            print(f"{prog}: error: {exc}", file=sys.stderr)
+            return 2
         if isinstance(exc, OSError) and exc.errno in _USER_ERRNOS and exc.filename:
             # a file or folder of the user's we may not read or search (or name): theirs to fix, one line
             print(f"{prog}: error: {exc.filename}: {exc.strerror or exc}", file=sys.stderr)

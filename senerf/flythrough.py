@@ -373,10 +373,7 @@ def _open_record(record: Path) -> int:
 
 def _landed(out: Path, path_record: dict) -> bool:
     """True when ``out`` holds this render's ``path.json`` (written last, so the output is whole)."""
-    try:
-        return json.loads((out / _MARKER).read_text()) == json.loads(json.dumps(path_record))
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError):
-        return False
+    return _marker(out) == json.loads(json.dumps(path_record))
 
 
 def _close_record(record: Path, landed: bool) -> None:
@@ -661,12 +658,18 @@ def _check_memory(intrinsics, renders: int = 1) -> None:
 _OUR_FILES = re.compile(r"(rgb|depth)_\d{3,}\.png|(rgb|depth|compare)\.gif|path\.json")
 
 
+def _marker(folder: Path):
+    """``folder``'s ``path.json``, parsed; None when it cannot be read or is no JSON."""
+    try:
+        return json.loads((folder / _MARKER).read_text())
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError):
+        return None
+
+
 def _is_ours(folder: Path) -> bool:
     """True when ``folder`` holds a ``path.json`` written by senerf-render."""
-    try:
-        return json.loads((folder / _MARKER).read_text()).get("senerf_render") is not None
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError, AttributeError):
-        return False
+    marker = _marker(folder)
+    return isinstance(marker, dict) and marker.get("senerf_render") is not None
 
 
 def _absolute(out: Path) -> Path:

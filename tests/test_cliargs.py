@@ -49,8 +49,9 @@ def test_int_flag_refuses_a_non_integer():
     ({"positive": True}, ["1e-300", "2"], ["0", "-0.0", "-1"], " > 0"),
     ({"minimum": 0.0, "maximum": 0.5}, ["0", "0.5"], ["-1e-9", "0.5000001"], " >= 0 and <= 0.5"),
     ({"maximum": 2.0}, ["2", "-7"], ["2.01"], " <= 2"),
-    # both lower bounds named (the message said only "> 0" at 7c49076, though 0.2 was refused for minimum 0.5)
+    # both lower bounds named (the message said only "> 0" at 7c49076, though 0.2 was refused for minimum 0.5) ...
     ({"positive": True, "minimum": 0.5}, ["0.5", "3"], ["0.2", "0"], " > 0 and >= 0.5"),
+    # ... and positive with a maximum, as before (its message was right at 7c49076 too)
     ({"positive": True, "maximum": 3.0}, ["3", "1e-9"], ["3.5", "0"], " > 0 and <= 3"),
 ])
 def test_float_flag_bounds_are_inclusive_and_refuse_non_finite(kwargs, accepted, refused, bound):

@@ -247,16 +247,18 @@ def load_results(path: str | Path, skipped: list | None = None) -> tuple[list[di
             raw = raw.strip()
             if not raw:
                 continue
+            rec, why = None, None
             try:
                 rec = json.loads(raw.decode("utf-8"))
             except UnicodeDecodeError:
-                rec = _Undecoded("not UTF-8")
+                why = "not UTF-8"
             except (ValueError, RecursionError):   # bad JSON, an integer of 5000 digits, nesting 100000 deep
-                rec = _Undecoded("not JSON")
+                why = "not JSON"
             unreadable = _unreadable_schema(rec) if isinstance(rec, dict) else None
             if unreadable is not None:   # before the shape checks: a newer schema may have renamed any field
                 raise _line_error(name, number, rec, "schema", unreadable)
-            why = _unparseable(rec)   # mistyped lines would crash the tables, or count a run done on a made-up figure
+            # mistyped lines would crash the tables, or count a run done on a made-up figure
+            why = why or _unparseable(rec)
             if why is not None:
                 bad += 1
                 if skipped is not None:
@@ -269,15 +271,8 @@ def load_results(path: str | Path, skipped: list | None = None) -> tuple[list[di
     return records, bad
 
 
-class _Undecoded(str):
-    """Why a line could not be decoded (what :func:`_unparseable` reports for it)."""
-
-
 def _unparseable(rec) -> str | None:
-    """Why a decoded line (a :class:`_Undecoded`: not decoded) is no results line :func:`load_results` can use,
-    or None."""
-    if isinstance(rec, _Undecoded):
-        return str(rec)
+    """Why a decoded line is no results line :func:`load_results` can use, or None."""
     if not isinstance(rec, dict) or "run_key" not in rec:
         return "not a results line (no run_key)"
     if rec.get("status") == "ok" and not _OK_FIELDS <= rec.keys():

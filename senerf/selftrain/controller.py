@@ -637,11 +637,11 @@ def _check_settings(path: Path, state: dict, settings: dict) -> None:
 def _old_fingerprints(settings: dict) -> tuple[str, ...]:
     """:func:`_run_fingerprints` of ``settings``, and, where ``config.n_views`` is recorded as not given, of the
     same settings with the protocol's default count (what ``--n-views`` at its default hashed before)."""
-    config = settings.get("config", {})
-    default = DEFAULT_N_VIEWS.get(config.get("protocol")) if isinstance(config.get("protocol"), str) else None
-    if config.get("n_views", 0) is not None or default is None:
-        return _run_fingerprints(settings)
-    return _run_fingerprints(settings) + _run_fingerprints({**settings, "config": {**config, "n_views": default}})
+    fingerprints, config = _run_fingerprints(settings), settings["config"]   # this run's: built by _run_settings
+    default = DEFAULT_N_VIEWS.get(config.get("protocol"))
+    if "n_views" in config and config["n_views"] is None and default is not None:
+        fingerprints += _run_fingerprints({**settings, "config": {**config, "n_views": default}})
+    return fingerprints
 
 
 def _check_scene_files(record: Path, now: dict | None) -> None:
