@@ -11,8 +11,9 @@ The field is the one a finished iteration ended with (``checkpoints/iter_K_train
 whole path, so the colours do not flicker), ``rgb.gif``, ``depth.gif`` and ``path.json`` (the poses, OpenCV
 camera-to-world in the scene's world frame, and the intrinsics); with ``--compare`` also ``compare.gif``, the
 teacher (iteration 0) beside the rendered iteration along the same path.  The output folder is written once every
-frame is rendered and appears whole, by one rename.  Until then each rendered frame is kept in a hidden folder
-beside it (``.<name>.frames``, :func:`frames_record`, marked as senerf-render's), so that a render interrupted
+frame is rendered and appears whole, by one rename (an empty folder of the user's is filled, and an earlier output in
+the current folder or a mount point is replaced in place: :func:`write_frames`).  Until then each rendered frame is
+kept in a hidden folder beside it (``.<name>.frames``, :func:`frames_record`, marked as senerf-render's), so that a render interrupted
 (Ctrl-C, SIGTERM, a kill, a full disk) goes on where it stopped when the same command is run again, with the same
 frames to the bit (on the same kind of device); that folder is removed once the output lands.
 
@@ -496,7 +497,9 @@ def write_frames(out: Path, frames: dict, record: dict, fps: float, overwrite: b
     and ``path.json`` into a temporary sibling of ``out``, then rename it to ``out``.  An existing ``out`` is
     replaced only with ``overwrite`` and only when it is a senerf-render folder (it holds ``path.json``
     written by this command); an empty folder (not a link) is filled instead, its files moved in, path.json
-    last."""
+    last.  An earlier output in a folder that cannot be renamed aside (a mount point) or that is the current
+    folder (a shell inside it) is replaced in place (:func:`_refill`): there an interrupt leaves the folder
+    without the earlier output, where elsewhere it puts the earlier output back."""
     import imageio.v3 as iio
 
     from senerf.train import write_png
@@ -517,6 +520,8 @@ def write_frames(out: Path, frames: dict, record: dict, fps: float, overwrite: b
         os.chmod(tmp, 0o755)
         if _empty_folder(out):   # the user's own folder, kept (its mode, its owner, a shell inside it)
             _fill(out, tmp)
+        elif out.exists() and _replaced_in_place(out):
+            _refill(out, tmp)
         elif out.exists():
             old = out.with_name(f".{out.name}.old-{os.getpid()}")
             try:
@@ -526,7 +531,10 @@ def write_frames(out: Path, frames: dict, record: dict, fps: float, overwrite: b
                 if old.exists() and not out.exists():
                     old.rename(out)
                 raise
-            shutil.rmtree(old, ignore_errors=True)
+            if old.is_symlink():   # --out a link to an earlier output: the link goes, what it led to stays
+                old.unlink()
+            else:
+                shutil.rmtree(old, ignore_errors=True)
         else:
             tmp.rename(out)
     except OSError as exc:   # a full disk, a folder that turned read-only: the earlier output (if any) stays
@@ -557,12 +565,53 @@ def _fill(out: Path, tmp: Path) -> None:
         raise
 
 
+def _replaced_in_place(out: Path) -> bool:
+    """True for a folder (not a link) that :func:`write_frames` cannot rename aside without harm: a mount point
+    (the rename fails) or the current folder (a shell inside it would be left in a deleted folder)."""
+    if out.is_symlink() or not out.is_dir():
+        return False
+    try:
+        return os.path.ismount(out) or os.path.samefile(out, os.getcwd())
+    except OSError:   # no current folder (it was deleted)
+        return os.path.ismount(out)
+
+
+def _remove_ours(folder: Path, keep=()) -> None:
+    """Remove the files senerf-render writes (:data:`_OUR_FILES`) from ``folder``, ``path.json`` first (so that
+    the folder stops being a finished output before any frame goes), except the names in ``keep``."""
+    names = [p.name for p in folder.iterdir() if _OUR_FILES.fullmatch(p.name) and p.name not in keep]
+    for name in sorted(names, key=lambda n: (n != _MARKER, n)):
+        (folder / name).unlink(missing_ok=True)
+
+
+def _refill(out: Path, tmp: Path) -> None:
+    """Replace the earlier senerf-render output in the folder ``out`` by ``tmp``'s files, in place: the earlier
+    files are removed (``path.json`` first), then ``tmp``'s are moved in (:func:`_fill`, ``path.json`` last).
+    An interrupt (Ctrl-C, SIGTERM) leaves ``out`` without any of them (the earlier output is gone by then: no
+    half of either stays); a kill mid-way is finished by :func:`recover_interrupted`, like a begun fill."""
+    try:
+        _remove_ours(out)
+        _fill(out, tmp)
+    except BaseException:
+        _remove_ours(out)
+        raise
+
+
+def _expected_names(marker: dict) -> set[str] | None:
+    """The file names of the output whose ``path.json`` holds ``marker``; None when it does not say."""
+    c2w, compared = marker.get("c2w"), marker.get("compared_with")
+    if not isinstance(c2w, list):
+        return None
+    frames = {f"{kind}_{i:03d}.png" for kind in ("rgb", "depth") for i in range(len(c2w))}
+    return frames | {"rgb.gif", "depth.gif", _MARKER} | ({"compare.gif"} if compared is not None else set())
+
+
 def _begun_fill(out: Path, tmp: Path) -> bool:
     """True when ``tmp``, a complete output (our ``path.json``, no :data:`_PARTIAL`), was being moved into
     ``out``: a folder (not a link) without ``path.json`` holding only names senerf-render writes."""
     if not (_is_ours(tmp) and not (tmp / _PARTIAL).exists() and out.is_dir() and not out.is_symlink()):
         return False
-    names = [p.name for p in out.iterdir()]
+    names = [p.name for p in out.iterdir() if p.name != ".DS_Store"]
     return _MARKER not in names and all(_OUR_FILES.fullmatch(n) for n in names)
 
 
@@ -628,6 +677,9 @@ def recover_interrupted(out: Path) -> list[str]:
                 entry.rename(out)
                 done.append(f"restored {out}, the earlier output an interrupted {PROG} had moved aside")
         elif tmp and _begun_fill(out, entry):
+            expected = _expected_names(_marker(entry))
+            if expected is not None:   # frames of an output replaced in place (_refill) that the new one lacks
+                _remove_ours(out, keep=expected)
             _fill(out, entry)
             shutil.rmtree(entry, ignore_errors=True)
             done.append(f"finished {out}, which an interrupted {PROG} had begun to fill")
@@ -686,17 +738,30 @@ def _empty_folder(path: Path) -> bool:
     return path.is_dir() and not path.is_symlink() and not any(path.iterdir())
 
 
-def _check_out(out: Path, overwrite: bool) -> None:
+def _check_out(out: Path, overwrite: bool, command: list | None = None) -> bool:
+    """Check ``out`` before rendering (after tidying what a killed render left beside it); InputError when it
+    cannot be written.  Returns True when ``out`` already holds the whole output of ``command`` (senerf-render's
+    argv) written by an interrupted call of it (its fill finished now, or its frames record left beside it): that
+    call's work is done, and nothing is to be rendered."""
     from senerf.atomic import output_folder
 
     output_folder(out, "--out")
+    finished = False
     try:
         for line in recover_interrupted(out):
+            finished = finished or line.startswith("finished ")
             warnings.warn(line, stacklevel=2)
     except OSError:   # an unreadable parent: the write below reports it
         pass
+    if command is not None and (finished or frames_record(out).is_dir()) and not out.is_symlink():
+        marker = _marker(out)
+        if isinstance(marker, dict) and marker.get("senerf_render") is not None and marker.get("command") == command:
+            return True
+    if out.is_symlink() and not _is_ours(out):   # (a link to an earlier output is replaced with --overwrite)
+        raise InputError(f"is a symbolic link (to {os.readlink(out)}); senerf-render writes into a folder, not "
+                         f"through a link: give the folder itself or another --out", file=out)
     if not out.exists() or _empty_folder(out):   # an empty folder holds nothing to lose
-        return
+        return False
     if not overwrite:
         raise InputError("exists; use --overwrite (replaces an earlier senerf-render output) or another --out",
                          file=out)
@@ -707,6 +772,7 @@ def _check_out(out: Path, overwrite: bool) -> None:
     if foreign:   # --overwrite replaces the whole folder: a file put there since would go with it
         raise InputError(f"holds {foreign[0]}, which senerf-render did not write; --overwrite replaces only its own "
                          f"outputs: move it or choose another --out", file=out)
+    return False
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -747,9 +813,11 @@ def _run(args, argv: list[str]) -> int:
     set_threads(args.threads)
     if args.elevation is not None and args.path not in (None, "orbit"):
         raise InputError("applies to --path orbit only", field="--elevation")
+    command = argv   # what path.json records
     if args.out is not None:
         args.out = _absolute(args.out)   # `--out .` has no name to make a sibling of
-        _check_out(args.out, args.overwrite)   # before loading anything
+        if _check_out(args.out, args.overwrite, command):   # before loading anything
+            return _written_before(args.out)
     run = load_fitted_run(args.run, args.iteration, device)
     path = args.path or ("spiral" if run.scene.kind == "forward_facing" else "orbit")
     if args.elevation is not None and path != "orbit":
@@ -759,7 +827,8 @@ def _run(args, argv: list[str]) -> int:
     out = args.out
     if out is None:   # a given --out was checked before loading
         out = run.folder / "render" / f"{path}_iter{run.iteration}"
-        _check_out(out, args.overwrite)
+        if _check_out(out, args.overwrite, command):
+            return _written_before(out)
     c2w, intrinsics = path_cameras(run, path, args.frames or FRAMES_DEFAULT, args.scale, args.elevation)
     teacher = None
     if args.compare:   # before rendering: a missing teacher checkpoint is found now, not after the frames
@@ -787,7 +856,7 @@ def _run(args, argv: list[str]) -> int:
             read_back += first["read_back"]
         if read_back:
             print(f"{PROG}: ({read_back} frame{'s' if read_back > 1 else ''} read back, not rendered again)")
-        path_record = dict(senerf_render=__version__, command=argv, run=str(run.folder.resolve()),
+        path_record = dict(senerf_render=__version__, command=command, run=str(run.folder.resolve()),
                            iteration=run.iteration, compared_with=0 if compare is not None else None, path=path,
                            fps=args.fps,
                            convention="OpenCV camera-to-world (x right, y down, z forward), the scene's world "
@@ -819,6 +888,14 @@ def _run(args, argv: list[str]) -> int:
                     folder.rmdir()
                 except OSError:
                     break
+    return 0
+
+
+def _written_before(out: Path) -> int:
+    """Finish a call whose output an interrupted call of the same command wrote whole (:func:`_check_out`):
+    remove the frames record it left; exit status 0."""
+    _close_record(frames_record(out), landed=True)
+    print(f"{PROG}: {out} holds this command's output, written whole by its interrupted call; nothing to render")
     return 0
 
 

@@ -213,9 +213,10 @@ def test_an_empty_out_folder_is_written_into_with_or_without_overwrite(runs, tmp
     target = tmp_path / "target"
     target.mkdir()
     link = tmp_path / "link"
-    link.symlink_to(target)   # a link to an empty folder is not replaced by a rename: refused as before
-    assert main([str(runs.base), "--out", str(link), "--frames", "2", "--quiet"]) == 2
-    assert "exists; use --overwrite" in _error(capsys)
+    link.symlink_to(target)   # a link to an empty folder is refused, with or without --overwrite, naming the folder
+    for extra in ([], ["--overwrite"]):   # (before, "exists; use --overwrite", and --overwrite was refused too)
+        assert main([str(runs.base), "--out", str(link), "--frames", "2", "--quiet", *extra]) == 2
+        assert f"{link}: is a symbolic link (to {target}); senerf-render writes into a folder" in _error(capsys)
     assert link.is_symlink() and not any(target.iterdir())
 
 
@@ -769,6 +770,136 @@ def test_a_fill_of_an_empty_folder_killed_midway_is_finished_by_the_next_render(
         with pytest.raises(InputError, match="exists; use --overwrite"):
             _check_out(other, overwrite=False)
     assert sorted(p.name for p in other.iterdir()) == ["notes.txt"]
+
+
+def _earlier_output(folder: Path, frames: int, record=None) -> list[str]:
+    """Write a senerf-render output of ``frames`` frames into ``folder`` (made, or filled when empty); its names."""
+    from senerf.flythrough import write_frames
+
+    rgb = np.zeros((frames, 4, 4, 3), np.uint8)
+    write_frames(folder, dict(rgb=rgb, depth=rgb), record or {"senerf_render": "x", "c2w": [[0]] * frames},
+                 fps=10.0)
+    return sorted(p.name for p in folder.iterdir())
+
+
+def test_overwrite_of_the_current_folder_or_a_mount_point_replaces_the_output_in_place(runs, tmp_path, capsys,
+                                                                                      monkeypatch):
+    # Before, `--out . --overwrite` renamed the shell's folder aside and deleted it (the output was whole, the shell
+    # was left in a deleted folder), and --overwrite onto a mount point failed every time: it cannot be renamed.
+    import os
+
+    here = tmp_path / "here"
+    here.mkdir()
+    monkeypatch.chdir(here)
+    assert main([str(runs.base), "--out", ".", "--frames", "3", "--quiet"]) == 0
+    (here / ".DS_Store").write_text("x")
+    inode = here.stat().st_ino
+    assert main([str(runs.base), "--out", ".", "--frames", "2", "--quiet", "--overwrite"]) == 0
+    assert here.stat().st_ino == inode and os.path.samefile(os.getcwd(), here)
+    assert sorted(p.name for p in here.glob("rgb_*.png")) == ["rgb_000.png", "rgb_001.png"]   # no frame 2 left
+    assert len(json.loads((here / "path.json").read_text())["c2w"]) == 2 and (here / ".DS_Store").is_file()
+    monkeypatch.chdir(tmp_path)
+    mount = tmp_path / "mount"
+    assert main([str(runs.base), "--out", str(mount), "--frames", "3", "--quiet"]) == 0
+    inode = mount.stat().st_ino
+
+    def no_rename_of_a_mount_point(self, target):
+        raise OSError(16, "Device or resource busy")
+    import senerf.flythrough as fly
+
+    monkeypatch.setattr(os.path, "ismount", lambda path: Path(path) == mount)
+    monkeypatch.setattr(Path, "rename", lambda self, target: no_rename_of_a_mount_point(self, target)
+                        if self == mount else os.rename(self, target))
+    assert fly._replaced_in_place(mount) and not fly._replaced_in_place(here)
+    assert main([str(runs.base), "--out", str(mount), "--frames", "2", "--quiet", "--overwrite"]) == 0
+    assert mount.stat().st_ino == inode and len(json.loads((mount / "path.json").read_text())["c2w"]) == 2
+    assert sorted(p.name for p in mount.glob("*.png")) == ["depth_000.png", "depth_001.png", "rgb_000.png",
+                                                            "rgb_001.png"]
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith(".mount")]
+
+
+def test_an_interrupt_while_replacing_in_place_leaves_the_folder_without_either_output(tmp_path, monkeypatch):
+    # Catches: _refill's rollback removed (an interrupt while the earlier files went left some of them without their
+    # path.json: a folder every later render refused as "not a senerf-render output").
+    import senerf.flythrough as fly
+
+    real_unlink, real_move = Path.unlink, shutil.move
+    for stage in ("removing the earlier files", "moving the new ones in"):
+        out, tmp = tmp_path / stage / "mount", tmp_path / stage / "tmp"
+        _earlier_output(out, 3)
+        (out / ".DS_Store").write_text("x")
+        assert len(_earlier_output(tmp, 2)) == 7
+        calls = []
+
+        def interrupting(real):
+            def call(*args, **kwargs):
+                calls.append(args)
+                if len(calls) == 3:
+                    raise KeyboardInterrupt
+                return real(*args, **kwargs)
+            return call
+        if stage == "removing the earlier files":
+            monkeypatch.setattr(Path, "unlink", interrupting(real_unlink))
+        else:
+            monkeypatch.setattr(shutil, "move", interrupting(real_move))
+        with pytest.raises(KeyboardInterrupt):
+            fly._refill(out, tmp)
+        monkeypatch.undo()
+        assert [p.name for p in out.iterdir()] == [".DS_Store"] and len(list(tmp.iterdir())) == 7, stage
+
+
+def test_a_replacement_in_place_killed_midway_is_finished_without_the_earlier_frames(tmp_path):
+    # Catches: recover_interrupted finishing the fill without removing the earlier output's frames the new one
+    # lacks (a 3-frame output replaced by a 2-frame one kept rgb_002.png beside the new path.json).
+    from senerf.flythrough import _check_out
+
+    out = tmp_path / "mount"
+    earlier = _earlier_output(out, 3)
+    tmp = tmp_path / f".mount.{_dead_pid()}.abc_1234"
+    new = _earlier_output(tmp, 2)
+    (out / "path.json").unlink()   # killed after the earlier path.json went and before every earlier frame did
+    (out / "rgb_000.png").unlink()
+    (tmp / "rgb_000.png").rename(out / "rgb_000.png")   # and after the first new frame moved in
+    (out / ".DS_Store").write_text("x")   # a Finder file does not stop the recovery
+    with pytest.warns(UserWarning, match="finished .*mount, which an interrupted senerf-render had begun to fill"):
+        assert _check_out(out, overwrite=True) is False
+    assert sorted(p.name for p in out.iterdir()) == sorted([*new, ".DS_Store"]) and len(earlier) == 9
+    assert not tmp.exists()
+
+
+def test_the_same_command_after_a_kill_midway_finds_its_output_written(runs, tmp_path, capsys):
+    # Before, the rerun finished the dead render's fill and then refused: "exists; use --overwrite", with the
+    # frames record left beside the whole output (fuzzing helper, session 22).
+    from senerf.flythrough import write_frames
+
+    out = tmp_path / "mine"
+    argv = [str(runs.base), "--out", str(out), "--frames", "2", "--quiet"]
+    assert main(argv) == 0   # what the dead render would have written, with its record
+    record = json.loads((out / "path.json").read_text())
+    assert record["command"] == ["senerf-render", *argv]
+    shutil.rmtree(out)
+    out.mkdir()
+    tmp = tmp_path / f".mine.{_dead_pid()}.abc_1234"
+    rgb = np.zeros((2, 4, 4, 3), np.uint8)
+    write_frames(tmp, dict(rgb=rgb, depth=rgb), record, fps=10.0)
+    (tmp / "rgb_000.png").rename(out / "rgb_000.png")   # killed while filling the user's empty folder
+    frames_record(out).mkdir()   # its frames record (the rerun removes it)
+    (frames_record(out) / ".senerf-render-frames").touch()
+    (frames_record(out) / "frame_000.npz").write_bytes(b"x")
+    assert main(argv) == 0
+    said = capsys.readouterr()
+    assert f"{out} holds this command's output, written whole by its interrupted call; nothing to render" in said.out
+    assert "finished" in said.err and (out / "path.json").is_file() and not frames_record(out).exists()
+    assert not tmp.exists()
+    assert main(argv) == 2   # no record and no fill to finish: an ordinary existing output
+    assert "exists; use --overwrite" in _error(capsys)
+    frames_record(out).mkdir()   # killed after its path.json landed, before the record went: done as well
+    (frames_record(out) / ".senerf-render-frames").touch()
+    assert main(argv) == 0 and not frames_record(out).exists()
+    frames_record(out).mkdir()   # another command's record beside it: refused as before, the record kept
+    (frames_record(out) / ".senerf-render-frames").touch()
+    assert main([*argv[:-1], "--fps", "5", "--quiet"]) == 2
+    assert "exists; use --overwrite" in _error(capsys) and frames_record(out).is_dir()
 
 
 def test_a_scene_whose_files_changed_since_the_fit_is_rendered_with_a_warning(runs, tmp_path, capsys):

@@ -209,7 +209,7 @@ def test_an_unreadable_parent_while_tidying_does_not_stop_the_out_check(tmp_path
     def unreadable(out: Path):
         raise PermissionError(13, "Permission denied", str(out.parent))
     monkeypatch.setattr(fly, "recover_interrupted", unreadable)
-    assert fly._check_out(tmp_path / "new", overwrite=False) is None
+    assert fly._check_out(tmp_path / "new", overwrite=False) is False   # nothing written before: go on
     (tmp_path / "old").mkdir()
     (tmp_path / "old" / "frame.png").write_bytes(b"")   # an empty folder is no longer refused
     with pytest.raises(InputError, match="exists; use --overwrite"):   # the checks after it still run
