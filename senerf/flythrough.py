@@ -13,9 +13,9 @@ camera-to-world in the scene's world frame, and the intrinsics); with ``--compar
 teacher (iteration 0) beside the rendered iteration along the same path.  The output folder is written once every
 frame is rendered and appears whole, by one rename (an empty folder of the user's is filled, and an earlier output in
 the current folder or a mount point is replaced in place: :func:`write_frames`).  Until then each rendered frame is
-kept in a hidden folder beside it (``.<name>.frames``, :func:`frames_record`, marked as senerf-render's), so that a render interrupted
-(Ctrl-C, SIGTERM, a kill, a full disk) goes on where it stopped when the same command is run again, with the same
-frames to the bit (on the same kind of device); that folder is removed once the output lands.
+kept in a hidden folder beside it (``.<name>.frames``, :func:`frames_record`, marked as senerf-render's), so that a
+render interrupted (Ctrl-C, SIGTERM, a kill, a full disk) goes on where it stopped when the same command is run
+again, with the same frames to the bit (on the same kind of device); that folder is removed once the output lands.
 
 Exit status: 0 done, 2 bad input (one line ``senerf-render: error: ...`` naming the file or flag), 130
 interrupted (Ctrl-C or SIGTERM; no output is written, the frames rendered so far are kept), 1 internal error.
