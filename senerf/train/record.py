@@ -7,6 +7,7 @@ its per-iteration rows come from here, so a field added to it reaches both.
 from __future__ import annotations
 
 import json
+import platform
 from pathlib import Path
 
 import numpy as np
@@ -15,7 +16,7 @@ from senerf import __version__
 from senerf.data import view_names
 
 __all__ = ["metrics_document", "iteration_row", "host_record", "host_change", "resume_host_line",
-           "finished_metrics"]
+           "finished_metrics", "cpu_model"]
 
 
 def metrics_document(scene, train_idx, test_idx, command, config: dict) -> dict:
@@ -30,25 +31,55 @@ def metrics_document(scene, train_idx, test_idx, command, config: dict) -> dict:
             "resolution": [int(h), int(w)], "iterations": [], "seconds_total": 0.0}
 
 
+def cpu_model(cpuinfo: str | Path = "/proc/cpuinfo") -> str:
+    """The processor's model: the first processor's ``model name`` in ``cpuinfo`` (Linux), with its ``cpu family``
+    and ``model`` numbers where given (a virtual machine's name can be as plain as "Intel(R) Xeon(R) Processor"),
+    else ``platform.processor()``, else ``platform.machine()`` (``'unknown'`` when all are empty).
+
+    Example:
+        >>> isinstance(cpu_model(), str) and cpu_model() != ""
+        True
+    """
+    fields = {}
+    try:
+        with open(cpuinfo, encoding="utf-8", errors="replace") as lines:
+            for line in lines:
+                if not line.strip() and fields:   # the end of the first processor's block
+                    break
+                key, _, value = line.partition(":")
+                fields.setdefault(key.strip().lower(), " ".join(value.split()))
+    except OSError:   # not Linux
+        pass
+    name = fields.get("model name")
+    if not name:
+        return platform.processor() or platform.machine() or "unknown"
+    numbers = [f"{word} {fields[key]}" for key, word in (("cpu family", "family"), ("model", "model"))
+               if fields.get(key)]
+    return f"{name} ({', '.join(numbers)})" if numbers else name
+
+
 def host_record(device) -> dict:
     """What a fit's figures depend on beyond its settings: the device (``'cpu'`` or the GPU's name), torch's CPU
-    thread count and the torch and NumPy versions.  On the CPU a fit is the same to the bit for the same seed,
-    thread count and builds; with another thread count the float sums run in another order (lego Extreme fast
-    seed 0, 25 test views: 16.708767 -> 17.431559 dB with 2 threads, 16.653053 -> 17.420419 with 1; BENCHMARKS.md,
-    session 19).  On CUDA repeated runs differ (``index_add_`` and ``cumsum`` are not deterministic there)."""
+    thread count, the processor (:func:`cpu_model`) and the torch and NumPy versions.  On the CPU a fit is the
+    same to the bit for the same seed, thread count, processor and builds; with another thread count the float
+    sums run in another order (lego Extreme fast seed 0, 25 test views: 16.708767 -> 17.431559 dB with 2 threads,
+    16.653053 -> 17.420419 with 1; BENCHMARKS.md, session 19), and another processor takes other kernels (lego
+    Extreme balanced seed 0, 2 threads: a teacher of 15.252562 dB on an AMD EPYC, 14.650693 on an Intel Xeon;
+    session 23).  On CUDA repeated runs differ (``index_add_`` and ``cumsum`` are not deterministic there)."""
     import torch
 
     device = torch.device(device)
     name = torch.cuda.get_device_name(device) if device.type == "cuda" else device.type
     # plain str: torch.__version__ is a TorchVersion, which a weights_only checkpoint load refuses
-    return {"device": str(name), "threads": int(torch.get_num_threads()), "torch": str(torch.__version__),
-            "numpy": str(np.__version__)}
+    return {"device": str(name), "threads": int(torch.get_num_threads()), "cpu": cpu_model(),
+            "torch": str(torch.__version__), "numpy": str(np.__version__)}
 
 
 def host_change(before: dict | None, now: dict) -> str:
     """How a recorded :func:`host_record` ``before`` differs from ``now``, in words, or ``''`` when it does not
     (or when ``before`` is not a dict: ``metrics.json`` rows written before session 19 and training checkpoints
-    written before session 20 record no host).
+    written before session 20 record no host; a key only one side records, such as ``cpu`` before session 23, is
+    no difference).
 
     Example:
         >>> host_change({"device": "cpu", "threads": 16}, {"device": "cpu", "threads": 1})
@@ -56,7 +87,8 @@ def host_change(before: dict | None, now: dict) -> str:
     """
     if not isinstance(before, dict):
         return ""
-    words = {"device": "on {}", "threads": "with {} thread{}", "torch": "with torch {}", "numpy": "with NumPy {}"}
+    words = {"device": "on {}", "threads": "with {} thread{}", "cpu": "with processor {}", "torch": "with torch {}",
+             "numpy": "with NumPy {}"}
     keys = [k for k in words if k in before and k in now and before[k] != now[k]]
 
     def said(host: dict) -> str:
@@ -69,9 +101,9 @@ def resume_host_line(before: dict | None, device, what: str) -> str:
     """The line a resume on ``device`` prints when the recorded host ``before`` differs from this call's, or ``''``:
     ``"{what} {host_change}: the rest is reproducible, but not bit for bit an uninterrupted run"``.
 
-    On the CPU only: there a run repeats to the bit for the same host, and another thread count, torch or NumPy
-    breaks that.  ``''`` on a GPU, where runs do not repeat to the bit anyway (``index_add_`` and ``cumsum``) and
-    CPU threads hardly matter.  ``what`` says what ran on ``before`` ("selftrain: iteration 2 ran").
+    On the CPU only: there a run repeats to the bit for the same host, and another thread count, processor, torch
+    or NumPy breaks that.  ``''`` on a GPU, where runs do not repeat to the bit anyway (``index_add_`` and
+    ``cumsum``) and CPU threads hardly matter.  ``what`` says what ran on ``before`` ("selftrain: iteration 2 ran").
     """
     import torch
 
