@@ -740,9 +740,10 @@ def _empty_folder(path: Path) -> bool:
 
 def _check_out(out: Path, overwrite: bool, command: list | None = None) -> bool:
     """Check ``out`` before rendering (after tidying what a killed render left beside it); InputError when it
-    cannot be written.  Returns True when ``out`` already holds the whole output of ``command`` (senerf-render's
-    argv) written by an interrupted call of it (its fill finished now, or its frames record left beside it): that
-    call's work is done, and nothing is to be rendered."""
+    cannot be written.  Returns True when the fill of ``out`` that a killed call of ``command`` (senerf-render's
+    argv, as its ``path.json`` records it) had begun was finished now: that call's output is whole, and nothing is
+    left to render.  (A frames record beside an output of the same command is no such sign: it can be that of a
+    later call, killed before its output replaced this one.)"""
     from senerf.atomic import output_folder
 
     output_folder(out, "--out")
@@ -753,7 +754,7 @@ def _check_out(out: Path, overwrite: bool, command: list | None = None) -> bool:
             warnings.warn(line, stacklevel=2)
     except OSError:   # an unreadable parent: the write below reports it
         pass
-    if command is not None and (finished or frames_record(out).is_dir()) and not out.is_symlink():
+    if command is not None and finished and not out.is_symlink():
         marker = _marker(out)
         if isinstance(marker, dict) and marker.get("senerf_render") is not None and marker.get("command") == command:
             return True
@@ -892,10 +893,10 @@ def _run(args, argv: list[str]) -> int:
 
 
 def _written_before(out: Path) -> int:
-    """Finish a call whose output an interrupted call of the same command wrote whole (:func:`_check_out`):
-    remove the frames record it left; exit status 0."""
+    """Finish a call whose output a killed call of the same command had begun to move into place, finished now
+    (:func:`_check_out`): remove the frames record that call left; exit status 0."""
     _close_record(frames_record(out), landed=True)
-    print(f"{PROG}: {out} holds this command's output, written whole by its interrupted call; nothing to render")
+    print(f"{PROG}: {out} holds this command's output, finished from its interrupted call; nothing to render")
     return 0
 
 
