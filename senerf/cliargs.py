@@ -112,9 +112,9 @@ def check_device(device: str, flag: str = "--device") -> str:
 THREADS_MAX = 1024
 
 THREADS_HELP = ("torch's CPU threads (default: torch's, usually one per core). A CPU fit repeats to the bit "
-                "for the same seed, thread count and torch build only; give the count a run was made with "
-                "(metrics.json's host.threads) to repeat it on another machine (one with other vector "
-                "instructions may still differ; not measured)")
+                "for the same seed, thread count, processor and torch build only; give the count a run was made "
+                "with (metrics.json's host.threads) to repeat it on another machine with the same processor "
+                "(host.cpu: another one takes other kernels, and the figures move)")
 
 
 def threads_flag(flag: str = "--threads"):
@@ -127,8 +127,9 @@ def set_threads(threads: int | None) -> None:
 
     The count sets how torch's CPU kernels, and senerf's compiled K-Planes kernel (which splits its points over
     ``torch.get_num_threads()`` workers), divide their sums, so it decides a CPU fit's figures to the last bit
-    (BENCHMARKS.md, session 19); ``--threads N`` lets another machine with the same torch build repeat them (a CPU
-    with other vector instructions may still sum differently: not measured).  Importing torch is left to this
+    (BENCHMARKS.md, session 19); ``--threads N`` lets another machine with the same processor and torch build
+    repeat them (another processor takes other kernels: lego balanced seed 0's teacher moved by 0.6 dB from an AMD
+    EPYC to an Intel Xeon, session 23).  Importing torch is left to this
     call's first use, as with :func:`check_device`.
     """
     if threads is None:

@@ -8,6 +8,8 @@ import subprocess
 from importlib import metadata
 from pathlib import Path
 
+from senerf.memory import cpu_model
+
 __all__ = ["git_commit", "machine_info"]
 
 
@@ -35,7 +37,7 @@ def machine_info(device: str = "cpu") -> dict:
     """
     return {
         "hostname": platform.node(),
-        "cpu": _cpu_model(),
+        "cpu": cpu_model(),
         "cores": os.cpu_count(),
         "cores_usable": len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count(),
         "memory_gib": _memory_gib(),
@@ -43,16 +45,6 @@ def machine_info(device: str = "cpu") -> dict:
         "python": platform.python_version(),
         "device": device if device == "cpu" else _gpu_name(device),
     }
-
-
-def _cpu_model() -> str:
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name") and ":" in line:
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or platform.machine()
 
 
 def _memory_gib() -> float | None:

@@ -3,7 +3,7 @@
 Deterministic on the CPU for a given ``TrainConfig.seed``: every random draw (ray batches, sample jitter,
 background colours, the ``extra_loss`` hook) comes from one ``torch.Generator`` on the training device
 whose state is checkpointed, so a resumed run reproduces the uninterrupted one bit for bit on the same host (thread
-count, torch and NumPy builds; the checkpoint records it, and a resume on another one says so).
+count, processor, torch and NumPy builds; the checkpoint records it, and a resume on another one says so).
 """
 
 from __future__ import annotations
@@ -193,8 +193,8 @@ def train_field(field: torch.nn.Module, rays: RayBatchSource, cfg: TrainConfig,
             ``cfg.checkpoint_every`` steps and at the end.  It is matched by the settings, the ray count and the
             field's shapes, not the pixels: a caller that changes the images keeps its own record (senerf-fit's
             ``run.json`` and ``run_selftraining``'s ``scene_files.json`` hold the scene files' digests).  On the
-            CPU a resume ends bit for bit as an uninterrupted run on the same host (another thread count, torch or
-            NumPy: a warning naming it); on CUDA it continues the same random stream, but CUDA's ``index_add_`` and
+            CPU a resume ends bit for bit as an uninterrupted run on the same host (another thread count, processor,
+            torch or NumPy: a warning naming it); on CUDA it continues the same random stream, but CUDA's ``index_add_`` and
             ``cumsum`` are not deterministic, so not to the bit; on another device type (CPU <-> CUDA) the ray
             batches continue from a new stream seeded from ``(cfg.seed, step)``, with a warning.
         progress: show a tqdm bar (step, loss, PSNR, rays/s).

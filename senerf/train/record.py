@@ -7,13 +7,13 @@ its per-iteration rows come from here, so a field added to it reaches both.
 from __future__ import annotations
 
 import json
-import platform
 from pathlib import Path
 
 import numpy as np
 
 from senerf import __version__
 from senerf.data import view_names
+from senerf.memory import cpu_model   # re-exported: metrics.json rows name the processor
 
 __all__ = ["metrics_document", "iteration_row", "host_record", "host_change", "resume_host_line",
            "finished_metrics", "cpu_model"]
@@ -29,33 +29,6 @@ def metrics_document(scene, train_idx, test_idx, command, config: dict) -> dict:
             "train_views": train_idx.tolist(), "test_views": test_idx.tolist(),
             "train_images": view_names(scene, train_idx), "test_images": view_names(scene, test_idx),
             "resolution": [int(h), int(w)], "iterations": [], "seconds_total": 0.0}
-
-
-def cpu_model(cpuinfo: str | Path = "/proc/cpuinfo") -> str:
-    """The processor's model: the first processor's ``model name`` in ``cpuinfo`` (Linux), with its ``cpu family``
-    and ``model`` numbers where given (a virtual machine's name can be as plain as "Intel(R) Xeon(R) Processor"),
-    else ``platform.processor()``, else ``platform.machine()`` (``'unknown'`` when all are empty).
-
-    Example:
-        >>> isinstance(cpu_model(), str) and cpu_model() != ""
-        True
-    """
-    fields = {}
-    try:
-        with open(cpuinfo, encoding="utf-8", errors="replace") as lines:
-            for line in lines:
-                if not line.strip() and fields:   # the end of the first processor's block
-                    break
-                key, _, value = line.partition(":")
-                fields.setdefault(key.strip().lower(), " ".join(value.split()))
-    except OSError:   # not Linux
-        pass
-    name = fields.get("model name")
-    if not name:
-        return platform.processor() or platform.machine() or "unknown"
-    numbers = [f"{word} {fields[key]}" for key, word in (("cpu family", "family"), ("model", "model"))
-               if fields.get(key)]
-    return f"{name} ({', '.join(numbers)})" if numbers else name
 
 
 def host_record(device) -> dict:

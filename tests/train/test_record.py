@@ -65,27 +65,6 @@ def test_host_change_names_what_differs_in_words():
     assert host_change("not a record", here) == "" and host_change(5, here) == ""
 
 
-def test_the_processor_is_read_from_cpuinfo_with_a_fallback(tmp_path, monkeypatch):
-    """Another processor takes other kernels (an Intel Xeon and an AMD EPYC gave lego balanced seed 0 teachers
-    0.6 dB apart with the same command, threads and builds): the rows name it."""
-    import platform
-
-    from senerf.train import cpu_model
-
-    info = tmp_path / "cpuinfo"
-    info.write_text("processor\t: 0\nvendor_id\t: GenuineIntel\ncpu family\t: 6\nmodel\t\t: 207\n"
-                    "model name\t: Intel(R) Xeon(R)  Processor\n\nprocessor\t: 1\nmodel name\t: Other\n")
-    assert cpu_model(info) == "Intel(R) Xeon(R) Processor (family 6, model 207)"   # the first one, spaces folded
-    info.write_text("model name\t: AMD EPYC 9B14\n")
-    assert cpu_model(info) == "AMD EPYC 9B14"
-    info.write_text("processor\t: 0\nBogoMIPS\t: 50.00\nCPU part\t: 0xd0c\n")   # an Arm machine names no model
-    monkeypatch.setattr(platform, "processor", lambda: "")
-    monkeypatch.setattr(platform, "machine", lambda: "aarch64")
-    assert cpu_model(info) == "aarch64" and cpu_model(tmp_path / "absent") == "aarch64"
-    monkeypatch.setattr(platform, "machine", lambda: "")
-    assert cpu_model(tmp_path / "absent") == "unknown"
-
-
 def test_a_resume_names_another_host_on_the_cpu_only(monkeypatch):
     """On the CPU a run repeats to the bit for the same host, so a resume names what differs; on a GPU runs do not
     repeat to the bit anyway and the CPU thread count hardly matters, so nothing is said there."""
