@@ -507,6 +507,7 @@ def write_frames(out: Path, frames: dict, record: dict, fps: float, overwrite: b
     out = Path(out)
     _check_out(out, overwrite)
     tmp = _temp_sibling(out)
+    in_place = False
     try:
         for i, (rgb, depth) in enumerate(zip(frames["rgb"], frames["depth"])):
             write_png(tmp / f"rgb_{i:03d}.png", rgb)
@@ -521,6 +522,7 @@ def write_frames(out: Path, frames: dict, record: dict, fps: float, overwrite: b
         if _empty_folder(out):   # the user's own folder, kept (its mode, its owner, a shell inside it)
             _fill(out, tmp)
         elif out.exists() and _replaced_in_place(out):
+            in_place = True
             _refill(out, tmp)
         elif out.exists():
             old = out.with_name(f".{out.name}.old-{os.getpid()}")
@@ -537,19 +539,31 @@ def write_frames(out: Path, frames: dict, record: dict, fps: float, overwrite: b
                 shutil.rmtree(old, ignore_errors=True)
         else:
             tmp.rename(out)
-    except OSError as exc:   # a full disk, a folder that turned read-only: the earlier output (if any) stays
-        raise InputError(f"cannot write there ({exc.strerror or exc})", file=out) from None
+    except OSError as exc:   # a full disk, a folder that turned read-only: the earlier output (if any) stays,
+        gone = "; the earlier output there was removed first (replaced in place)" if in_place else ""   # but here
+        raise InputError(f"cannot write there ({exc.strerror or exc}){gone}", file=out) from None
     finally:
         if tmp.exists():
             shutil.rmtree(tmp, ignore_errors=True)
     return out
 
 
+#: The file a fill of the user's folder (:func:`_fill`, :func:`_refill`) puts there first and removes last.  It
+#: names the temporary folder whose files are moved in, so that after a kill :func:`recover_interrupted` knows the
+#: senerf-render files there are that fill's (or the earlier output's it replaces), never the user's.
+_FILLING = ".senerf-render-filling"
+#: Files a folder may hold and still count as empty (a Finder's view settings).
+_IGNORED = frozenset({".DS_Store"})
+
+
 def _fill(out: Path, tmp: Path) -> None:
     """Move ``tmp``'s files into the folder ``out`` (empty, or holding the files an interrupted fill moved),
-    ``path.json`` last; an interrupt (Ctrl-C, SIGTERM) meanwhile moves back what this call moved.  A move
-    across file systems (``out`` a mount point) copies, then deletes; a kill mid-way is finished by
-    :func:`recover_interrupted`."""
+    ``path.json`` last, with :data:`_FILLING` naming ``tmp`` in ``out`` meanwhile; an interrupt (Ctrl-C, SIGTERM)
+    moves back what this call moved.  A move across file systems (``out`` a mount point) copies, then deletes; a
+    kill mid-way is finished by :func:`recover_interrupted`."""
+    filling = out / _FILLING
+    if not filling.exists():
+        filling.write_text(tmp.name)
     names = sorted(p.name for p in tmp.iterdir() if p.name != _MARKER) + [_MARKER]
     begun = []   # recorded before each move: an interrupt inside one (a copy across file systems) is undone too
     try:
@@ -562,7 +576,9 @@ def _fill(out: Path, tmp: Path) -> None:
                 (out / name).unlink(missing_ok=True)
             else:
                 shutil.move(out / name, tmp / name)
+        filling.unlink(missing_ok=True)
         raise
+    filling.unlink(missing_ok=True)
 
 
 def _replaced_in_place(out: Path) -> bool:
@@ -585,15 +601,19 @@ def _remove_ours(folder: Path, keep=()) -> None:
 
 
 def _refill(out: Path, tmp: Path) -> None:
-    """Replace the earlier senerf-render output in the folder ``out`` by ``tmp``'s files, in place: the earlier
-    files are removed (``path.json`` first), then ``tmp``'s are moved in (:func:`_fill`, ``path.json`` last).
-    An interrupt (Ctrl-C, SIGTERM) leaves ``out`` without any of them (the earlier output is gone by then: no
-    half of either stays); a kill mid-way is finished by :func:`recover_interrupted`, like a begun fill."""
+    """Replace the earlier senerf-render output in the folder ``out`` by ``tmp``'s files, in place: with
+    :data:`_FILLING` naming ``tmp`` in ``out``, the earlier files are removed (``path.json`` first), then ``tmp``'s
+    are moved in (:func:`_fill`, ``path.json`` last).  An interrupt or a write that fails leaves ``out`` without any
+    of them (the earlier output is gone by then: no half of either stays); a kill mid-way is finished by
+    :func:`recover_interrupted`."""
+    filling = out / _FILLING
     try:
+        filling.write_text(tmp.name)
         _remove_ours(out)
         _fill(out, tmp)
     except BaseException:
         _remove_ours(out)
+        filling.unlink(missing_ok=True)
         raise
 
 
@@ -606,13 +626,21 @@ def _expected_names(marker: dict) -> set[str] | None:
     return frames | {"rgb.gif", "depth.gif", _MARKER} | ({"compare.gif"} if compared is not None else set())
 
 
+def _filling_of(out: Path) -> str | None:
+    """The temporary folder's name that ``out``'s :data:`_FILLING` names (a fill under way or killed), or None."""
+    if out.is_symlink() or not out.is_dir():
+        return None
+    try:
+        return (out / _FILLING).read_text()
+    except (OSError, UnicodeDecodeError):
+        return None
+
+
 def _begun_fill(out: Path, tmp: Path) -> bool:
     """True when ``tmp``, a complete output (our ``path.json``, no :data:`_PARTIAL`), was being moved into
-    ``out``: a folder (not a link) without ``path.json`` holding only names senerf-render writes."""
-    if not (_is_ours(tmp) and not (tmp / _PARTIAL).exists() and out.is_dir() and not out.is_symlink()):
-        return False
-    names = [p.name for p in out.iterdir() if p.name != ".DS_Store"]
-    return _MARKER not in names and all(_OUR_FILES.fullmatch(n) for n in names)
+    ``out``: ``out``'s :data:`_FILLING` names it, and ``out`` holds no ``path.json`` yet."""
+    return (_is_ours(tmp) and not (tmp / _PARTIAL).exists() and _filling_of(out) == tmp.name
+            and not (out / _MARKER).exists())
 
 
 def _missing_folders(folder: Path) -> list[Path]:
@@ -647,14 +675,24 @@ def _process_gone(pid: int) -> bool:
     return False
 
 
+def _temp_name(out: Path):
+    """The pattern of :func:`_temp_sibling`'s names for ``out`` (group 1: the process id)."""
+    return re.compile(rf"\.{re.escape(out.name)}\.(\d+)\.[A-Za-z0-9_]{{8}}")
+
+
 def recover_interrupted(out: Path) -> list[str]:
     """Tidy what a senerf-render killed outright (SIGKILL, power loss) left beside ``out``; returns what it did.
 
-    * ``.NAME.old-PID``, the earlier output moved aside for ``--overwrite``: renamed back to ``out`` when the
-      kill came before the new output took its place, removed when it came after (``out`` is then whole).
+    * ``.NAME.old-PID``, the earlier output moved aside for ``--overwrite`` (or a link to one): renamed back to
+      ``out`` when the kill came before the new output took its place, removed when it came after (``out`` is
+      then whole).
     * ``.NAME.PID.xxxxxxxx``, a temporary folder holding :data:`_PARTIAL` (or, once complete, our
-      ``path.json``): removed; a complete one whose files were being moved into the user's empty folder
-      ``out`` (:func:`_fill`) has the rest moved in first.
+      ``path.json``): removed; a complete one whose files were being moved into the user's folder ``out``
+      (:func:`_fill`, :func:`_refill`: ``out``'s :data:`_FILLING` names it) has the rest moved in first, after the
+      earlier output's files the new one lacks are removed.
+    * ``out``'s :data:`_FILLING` of a dead render: removed once ``out`` holds its ``path.json`` (with the emptied
+      temporary folder); without ``path.json`` and with the temporary folder gone (an interrupt while an in-place
+      replacement was undone), the senerf-render files it marks are removed too, leaving ``out`` empty of them.
 
     Only folders of processes that no longer exist are touched, and only those that senerf-render marked.
     """
@@ -662,14 +700,22 @@ def recover_interrupted(out: Path) -> list[str]:
     parent = out.parent
     if not parent.is_dir():
         return done
-    old_name = re.compile(rf"\.{re.escape(out.name)}\.old-(\d+)")
-    tmp_name = re.compile(rf"\.{re.escape(out.name)}\.(\d+)\.[A-Za-z0-9_]{{8}}")
+    old_name, tmp_name = re.compile(rf"\.{re.escape(out.name)}\.old-(\d+)"), _temp_name(out)
     for entry in sorted(parent.iterdir()):
         old, tmp = old_name.fullmatch(entry.name), tmp_name.fullmatch(entry.name)
         match = old or tmp
-        if match is None or not entry.is_dir() or entry.is_symlink() or not _process_gone(int(match.group(1))):
+        if match is None or not _process_gone(int(match.group(1))):
             continue
-        if old and _is_ours(entry):
+        if old and entry.is_symlink() and _is_ours(entry):   # a link --overwrite had moved aside
+            if out.exists() or out.is_symlink():
+                entry.unlink()
+                done.append(f"removed {entry.name}, the link to the earlier output an interrupted {PROG} had replaced")
+            else:
+                entry.rename(out)
+                done.append(f"restored {out}, the link an interrupted {PROG} had moved aside")
+        elif not entry.is_dir() or entry.is_symlink():
+            continue
+        elif old and _is_ours(entry):
             if out.exists():
                 shutil.rmtree(entry, ignore_errors=True)
                 done.append(f"removed {entry.name}, the earlier output an interrupted {PROG} had replaced")
@@ -686,7 +732,27 @@ def recover_interrupted(out: Path) -> list[str]:
         elif tmp and ((entry / _PARTIAL).is_file() or _is_ours(entry)):
             shutil.rmtree(entry, ignore_errors=True)
             done.append(f"removed {entry.name}, a partial folder an interrupted {PROG} left")
+    done += _tidy_filling(out, tmp_name)
     return done
+
+
+def _tidy_filling(out: Path, tmp_name) -> list[str]:
+    """The last part of :func:`recover_interrupted`: ``out``'s :data:`_FILLING` left by a dead render."""
+    named = _filling_of(out)
+    match = tmp_name.fullmatch(named) if named is not None else None
+    if match is None or not _process_gone(int(match.group(1))):
+        return []
+    tmp = out.parent / named
+    if (out / _MARKER).exists():   # killed once the output landed, before the mark went
+        if tmp.is_dir() and not tmp.is_symlink() and not any(tmp.iterdir()):
+            tmp.rmdir()
+        (out / _FILLING).unlink(missing_ok=True)
+        return []
+    if tmp.exists():   # a temporary folder recover_interrupted did not take for ours: leave both alone
+        return []
+    _remove_ours(out)
+    (out / _FILLING).unlink(missing_ok=True)
+    return [f"emptied {out} of what an interrupted {PROG} left half replaced (its temporary folder was gone)"]
 
 
 def _check_memory(intrinsics, renders: int = 1) -> None:
@@ -733,17 +799,18 @@ def _absolute(out: Path) -> Path:
 
 
 def _empty_folder(path: Path) -> bool:
-    """True for an empty folder that is not a symbolic link (:func:`write_frames` fills it; a link is refused,
-    with or without ``--overwrite``, unless it leads to an earlier senerf-render output)."""
-    return path.is_dir() and not path.is_symlink() and not any(path.iterdir())
+    """True for an empty folder (but for :data:`_IGNORED` files) that is not a symbolic link (:func:`write_frames`
+    fills it; a link is refused, with or without ``--overwrite``, unless it leads to an earlier senerf-render
+    output)."""
+    return path.is_dir() and not path.is_symlink() and all(p.name in _IGNORED for p in path.iterdir())
 
 
 def _check_out(out: Path, overwrite: bool, command: list | None = None) -> bool:
     """Check ``out`` before rendering (after tidying what a killed render left beside it); InputError when it
     cannot be written.  Returns True when the fill of ``out`` that a killed call of ``command`` (senerf-render's
-    argv, as its ``path.json`` records it) had begun was finished now: that call's output is whole, and nothing is
-    left to render.  (A frames record beside an output of the same command is no such sign: it can be that of a
-    later call, killed before its output replaced this one.)"""
+    argv, as its ``path.json`` records it) had begun was finished now: that call's output is whole (the caller
+    checks that the command still means the same run and iteration).  A frames record beside an output of the
+    same command is no such sign: it can be that of a later call, killed before its output replaced this one."""
     from senerf.atomic import output_folder
 
     output_folder(out, "--out")
@@ -758,6 +825,11 @@ def _check_out(out: Path, overwrite: bool, command: list | None = None) -> bool:
         marker = _marker(out)
         if isinstance(marker, dict) and marker.get("senerf_render") is not None and marker.get("command") == command:
             return True
+    filling = _filling_of(out)
+    if filling is not None:   # recover_interrupted left it: its process lives
+        pid = _temp_name(out).fullmatch(filling)
+        raise InputError(f"is being filled by another {PROG}" + (f" (process {pid.group(1)})" if pid else "")
+                         + f"; wait for it to end, or remove {out / _FILLING} if no render is running", file=out)
     if out.is_symlink() and not _is_ours(out):   # (a link to an earlier output is replaced with --overwrite)
         raise InputError(f"is a symbolic link (to {os.readlink(out)}); senerf-render writes into a folder, not "
                          f"through a link: give the folder itself or another --out", file=out)
@@ -769,7 +841,7 @@ def _check_out(out: Path, overwrite: bool, command: list | None = None) -> bool:
     if not _is_ours(out):
         raise InputError(f"is not a senerf-render output (no {_MARKER} of ours); --overwrite never deletes files "
                          f"it did not make; choose another --out", file=out)
-    foreign = sorted(p.name for p in out.iterdir() if not (_OUR_FILES.fullmatch(p.name) or p.name == ".DS_Store"))
+    foreign = sorted(p.name for p in out.iterdir() if not (_OUR_FILES.fullmatch(p.name) or p.name in _IGNORED))
     if foreign:   # --overwrite replaces the whole folder: a file put there since would go with it
         raise InputError(f"holds {foreign[0]}, which senerf-render did not write; --overwrite replaces only its own "
                          f"outputs: move it or choose another --out", file=out)
@@ -815,10 +887,10 @@ def _run(args, argv: list[str]) -> int:
     if args.elevation is not None and args.path not in (None, "orbit"):
         raise InputError("applies to --path orbit only", field="--elevation")
     command = argv   # what path.json records
+    finished = False   # a killed call of this command had begun to fill --out, and that fill was finished now
     if args.out is not None:
         args.out = _absolute(args.out)   # `--out .` has no name to make a sibling of
-        if _check_out(args.out, args.overwrite, command):   # before loading anything
-            return _written_before(args.out)
+        finished = _check_out(args.out, args.overwrite, command)   # before loading anything
     run = load_fitted_run(args.run, args.iteration, device)
     path = args.path or ("spiral" if run.scene.kind == "forward_facing" else "orbit")
     if args.elevation is not None and path != "orbit":
@@ -828,8 +900,12 @@ def _run(args, argv: list[str]) -> int:
     out = args.out
     if out is None:   # a given --out was checked before loading
         out = run.folder / "render" / f"{path}_iter{run.iteration}"
-        if _check_out(out, args.overwrite, command):
+        finished = _check_out(out, args.overwrite, command)
+    if finished:
+        marker = _marker(out)
+        if marker.get("run") == str(run.folder.resolve()) and marker.get("iteration") == run.iteration:
             return _written_before(out)
+        _check_out(out, args.overwrite)   # the command now means another run or iteration: an existing output
     c2w, intrinsics = path_cameras(run, path, args.frames or FRAMES_DEFAULT, args.scale, args.elevation)
     teacher = None
     if args.compare:   # before rendering: a missing teacher checkpoint is found now, not after the frames

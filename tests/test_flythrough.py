@@ -754,22 +754,28 @@ def test_a_fill_of_an_empty_folder_killed_midway_is_finished_by_the_next_render(
     mine.mkdir()
     dead = _dead_pid()
     tmp = whole.rename(tmp_path / f".mine.{dead}.abc_1234")   # complete, no _PARTIAL: being moved into mine
+    (mine / ".senerf-render-filling").write_text(tmp.name)   # what _fill marks the folder with first
     for name in names[:3]:
         (tmp / name).rename(mine / name)
     assert "path.json" not in names[:3]
     with pytest.warns(UserWarning, match=f"finished {mine}, which an interrupted senerf-render had begun to fill"):
         _check_out(mine, overwrite=True)
     assert sorted(p.name for p in mine.iterdir()) == names and not tmp.exists()
-    # a folder holding a file of the user's is not taken for a fill begun: the temporary folder is only removed
-    other = tmp_path / "other"
-    other.mkdir()
-    (other / "notes.txt").write_text("mine")
-    again = write_frames(tmp_path / "again", dict(rgb=rgb, depth=rgb), {"senerf_render": "x"}, fps=10.0)
-    again.rename(tmp_path / f".other.{dead}.abc_1234")
-    with pytest.warns(UserWarning, match="removed .other"):
-        with pytest.raises(InputError, match="exists; use --overwrite"):
-            _check_out(other, overwrite=False)
-    assert sorted(p.name for p in other.iterdir()) == ["notes.txt"]
+    # a folder without the mark is not taken for a fill begun, even when it holds only names senerf-render writes
+    # (the user's rgb_007.png was deleted, and the dead render's frames moved over the user's: review): the temporary
+    # folder is only removed
+    for files in (["notes.txt"], ["rgb_007.png", "rgb_000.png"]):
+        other = tmp_path / f"other{len(files)}"
+        other.mkdir()
+        for name in files:
+            (other / name).write_text("mine")
+        again = write_frames(tmp_path / "again", dict(rgb=rgb, depth=rgb), {"senerf_render": "x"}, fps=10.0)
+        again.rename(tmp_path / f".{other.name}.{dead}.abc_1234")
+        with pytest.warns(UserWarning, match=f"removed .{other.name}"):
+            with pytest.raises(InputError, match="exists; use --overwrite"):
+                _check_out(other, overwrite=False)
+        assert sorted(p.name for p in other.iterdir()) == sorted(files)
+        assert all((other / name).read_text() == "mine" for name in files)
 
 
 def _earlier_output(folder: Path, frames: int, record=None) -> list[str]:
@@ -853,18 +859,98 @@ def test_a_replacement_in_place_killed_midway_is_finished_without_the_earlier_fr
     # lacks (a 3-frame output replaced by a 2-frame one kept rgb_002.png beside the new path.json).
     from senerf.flythrough import _check_out
 
+    for stage in ("removing the earlier files", "moving the new ones in", "removing the mark"):
+        out = tmp_path / stage / "mount"
+        earlier = _earlier_output(out, 3)
+        tmp = tmp_path / stage / f".mount.{_dead_pid()}.abc_1234"
+        new = _earlier_output(tmp, 2)
+        (out / ".senerf-render-filling").write_text(tmp.name)   # _refill marks the folder first
+        (out / "path.json").unlink()   # then removes the earlier path.json, then its files
+        if stage == "removing the earlier files":   # killed with the earlier depth_*, rgb_000-001 and gifs left
+            for name in ("rgb_002.png", "rgb_001.png"):
+                (out / name).unlink()
+        else:
+            for name in earlier:
+                (out / name).unlink(missing_ok=True)
+            for name in ("depth_000.png", "rgb.gif") + (("path.json",) if stage == "removing the mark" else ()):
+                (tmp / name).rename(out / name)   # killed after these moved in
+        (out / ".DS_Store").write_text("x")   # a Finder file does not stop the recovery
+        if stage == "removing the mark":   # the output landed: only the mark and the emptied folder go
+            for name in list(tmp.iterdir()):
+                name.rename(out / name.name)
+            assert _check_out(out, overwrite=True) is False
+        else:
+            with pytest.warns(UserWarning, match="finished .*mount, which an interrupted senerf-render had begun"):
+                assert _check_out(out, overwrite=True) is False
+        assert sorted(p.name for p in out.iterdir()) == sorted([*new, ".DS_Store"]) and len(earlier) == 9, stage
+        assert not tmp.exists()
+
+
+def test_what_an_interrupted_replacement_in_place_left_is_emptied_or_refused_while_it_runs(runs, tmp_path, capsys):
+    # Catches: a second Ctrl-C while _refill undid the first left earlier frames without path.json and no temporary
+    # folder (write_frames removed it): every later render refused the folder (review).  And a folder holding only
+    # a .DS_Store after an interrupted replacement was refused as not empty.
+    import os
+
     out = tmp_path / "mount"
-    earlier = _earlier_output(out, 3)
-    tmp = tmp_path / f".mount.{_dead_pid()}.abc_1234"
-    new = _earlier_output(tmp, 2)
-    (out / "path.json").unlink()   # killed after the earlier path.json went and before every earlier frame did
-    (out / "rgb_000.png").unlink()
-    (tmp / "rgb_000.png").rename(out / "rgb_000.png")   # and after the first new frame moved in
-    (out / ".DS_Store").write_text("x")   # a Finder file does not stop the recovery
-    with pytest.warns(UserWarning, match="finished .*mount, which an interrupted senerf-render had begun to fill"):
-        assert _check_out(out, overwrite=True) is False
-    assert sorted(p.name for p in out.iterdir()) == sorted([*new, ".DS_Store"]) and len(earlier) == 9
-    assert not tmp.exists()
+    _earlier_output(out, 3)
+    (out / ".DS_Store").write_text("x")
+    (out / ".senerf-render-filling").write_text(f".mount.{_dead_pid()}.abc_1234")   # its folder is gone
+    (out / "path.json").unlink()
+    argv = [str(runs.base), "--out", str(out), "--frames", "2", "--quiet"]
+    assert main(argv) == 0   # no --overwrite needed: what was left is emptied, then the folder is filled
+    assert "emptied" in capsys.readouterr().err
+    assert sorted(p.name for p in out.glob("rgb_*.png")) == ["rgb_000.png", "rgb_001.png"]
+    assert (out / ".DS_Store").is_file() and not (out / ".senerf-render-filling").exists()
+    # a fill under way in a live process: refused, naming it, and nothing touched
+    (out / ".senerf-render-filling").write_text(f".mount.{os.getpid()}.abc_1234")
+    assert main([*argv, "--overwrite"]) == 2
+    assert f"is being filled by another senerf-render (process {os.getpid()})" in _error(capsys)
+    assert (out / "path.json").is_file() and (out / ".senerf-render-filling").is_file()
+
+
+def test_a_link_to_an_earlier_output_is_replaced_with_overwrite_and_a_kill_midway_is_tidied(runs, tmp_path):
+    # Catches: the link moved aside by --overwrite removed with rmtree, which refuses links (ignore_errors: it stayed
+    # as .NAME.old-PID), and such a link left by a kill never tidied (recover_interrupted skipped links; review).
+    from senerf.flythrough import _check_out
+
+    target = tmp_path / "target"
+    assert main([str(runs.base), "--out", str(target), "--frames", "2", "--quiet"]) == 0
+    link = tmp_path / "link"
+    link.symlink_to(target)
+    assert main([str(runs.base), "--out", str(link), "--frames", "3", "--quiet", "--overwrite"]) == 0
+    assert not link.is_symlink() and len(json.loads((link / "path.json").read_text())["c2w"]) == 3
+    assert len(json.loads((target / "path.json").read_text())["c2w"]) == 2   # what it led to stays
+    assert sorted(p.name for p in tmp_path.iterdir() if p.name.startswith(".")) == []
+    dead = _dead_pid()
+    aside = tmp_path / f".again.old-{dead}"
+    aside.symlink_to(target)   # killed between its renames: the link goes back
+    with pytest.warns(UserWarning, match="restored .*again, the link"):
+        _check_out(tmp_path / "again", overwrite=True)
+    assert (tmp_path / "again").is_symlink() and not aside.is_symlink()
+    aside.symlink_to(target)   # killed after the new output took its place: the link is removed, the target stays
+    with pytest.warns(UserWarning, match="removed .again.old-.*, the link"):
+        _check_out(tmp_path / "again", overwrite=True)
+    assert not aside.is_symlink() and (target / "path.json").is_file()
+
+
+def test_a_failed_write_in_place_says_the_earlier_output_is_gone(runs, tmp_path, capsys, monkeypatch):
+    # Before, "cannot write there (...)" alone, as if the earlier output had stayed, as it does elsewhere (review).
+    here = tmp_path / "here"
+    here.mkdir()
+    monkeypatch.chdir(here)
+    assert main([str(runs.base), "--out", ".", "--frames", "2", "--quiet"]) == 0
+    real = shutil.move
+
+    def full_disk(source, target):
+        if Path(source).name == "rgb_001.png":
+            raise OSError(28, "No space left on device")
+        return real(source, target)
+    monkeypatch.setattr(shutil, "move", full_disk)
+    assert main([str(runs.base), "--out", ".", "--frames", "2", "--quiet", "--overwrite"]) == 2
+    assert "No space left on device); the earlier output there was removed first (replaced in place)" in _error(
+        capsys)
+    assert [p.name for p in here.iterdir()] == []
 
 
 def test_the_same_command_after_a_kill_midway_finds_its_output_written(runs, tmp_path, capsys):
@@ -882,6 +968,7 @@ def test_the_same_command_after_a_kill_midway_finds_its_output_written(runs, tmp
     tmp = tmp_path / f".mine.{_dead_pid()}.abc_1234"
     rgb = np.zeros((2, 4, 4, 3), np.uint8)
     write_frames(tmp, dict(rgb=rgb, depth=rgb), record, fps=10.0)
+    (out / ".senerf-render-filling").write_text(tmp.name)
     (tmp / "rgb_000.png").rename(out / "rgb_000.png")   # killed while filling the user's empty folder
     frames_record(out).mkdir()   # its frames record (the rerun removes it)
     (frames_record(out) / ".senerf-render-frames").touch()
@@ -899,15 +986,16 @@ def test_the_same_command_after_a_kill_midway_finds_its_output_written(runs, tmp
     (frames_record(out) / ".senerf-render-frames").touch()
     assert main(argv) == 2
     assert "exists; use --overwrite" in _error(capsys) and frames_record(out).is_dir()
-    # a fill of another command finished: refused as before
     shutil.rmtree(frames_record(out))
-    shutil.rmtree(out)
-    out.mkdir()
-    write_frames(tmp, dict(rgb=rgb, depth=rgb), dict(record, command=["senerf-render", "other"]), fps=10.0)
-    (tmp / "rgb_000.png").rename(out / "rgb_000.png")
-    assert main(argv) == 2
-    said = capsys.readouterr().err
-    assert "finished" in said and "exists; use --overwrite" in said and (out / "path.json").is_file()
+    for other in (dict(record, command=["senerf-render", "other"]), dict(record, iteration=1)):
+        shutil.rmtree(out)   # another command's fill finished, or this command's for an iteration it no longer means
+        out.mkdir()
+        write_frames(tmp, dict(rgb=rgb, depth=rgb), other, fps=10.0)
+        (out / ".senerf-render-filling").write_text(tmp.name)
+        (tmp / "rgb_000.png").rename(out / "rgb_000.png")
+        assert main(argv) == 2
+        said = capsys.readouterr().err
+        assert "finished" in said and "exists; use --overwrite" in said and (out / "path.json").is_file()
 
 
 def test_a_scene_whose_files_changed_since_the_fit_is_rendered_with_a_warning(runs, tmp_path, capsys):
