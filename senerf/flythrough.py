@@ -562,11 +562,12 @@ def _fill(out: Path, tmp: Path) -> None:
     moves back what this call moved.  A move across file systems (``out`` a mount point) copies, then deletes; a
     kill mid-way is finished by :func:`recover_interrupted`."""
     filling = out / _FILLING
-    if not filling.exists():
-        filling.write_text(tmp.name)
+    marked = _filling_of(out) != tmp.name   # False when a caller (_refill) or a killed call marked it already
     names = sorted(p.name for p in tmp.iterdir() if p.name != _MARKER) + [_MARKER]
     begun = []   # recorded before each move: an interrupt inside one (a copy across file systems) is undone too
     try:
+        if marked:
+            _mark_filling(out, tmp)
         for name in names:
             begun.append(name)
             shutil.move(tmp / name, out / name)
@@ -576,9 +577,19 @@ def _fill(out: Path, tmp: Path) -> None:
                 (out / name).unlink(missing_ok=True)
             else:
                 shutil.move(out / name, tmp / name)
-        filling.unlink(missing_ok=True)
+        if marked:   # a killed call's mark stays: its files in out are still to be moved in by the next call
+            filling.unlink(missing_ok=True)
         raise
     filling.unlink(missing_ok=True)
+
+
+def _mark_filling(out: Path, tmp: Path) -> None:
+    """Write ``out``'s :data:`_FILLING`, naming ``tmp``, whole or not at all: written as
+    ``.senerf-render-filling.PID`` first, then renamed (:func:`_tidy_filling` removes such a part of a dead
+    process)."""
+    part = out / f"{_FILLING}.{os.getpid()}"
+    part.write_text(tmp.name)
+    os.replace(part, out / _FILLING)
 
 
 def _replaced_in_place(out: Path) -> bool:
@@ -606,14 +617,14 @@ def _refill(out: Path, tmp: Path) -> None:
     are moved in (:func:`_fill`, ``path.json`` last).  An interrupt or a write that fails leaves ``out`` without any
     of them (the earlier output is gone by then: no half of either stays); a kill mid-way is finished by
     :func:`recover_interrupted`."""
-    filling = out / _FILLING
     try:
-        filling.write_text(tmp.name)
+        _mark_filling(out, tmp)
         _remove_ours(out)
         _fill(out, tmp)
     except BaseException:
         _remove_ours(out)
-        filling.unlink(missing_ok=True)
+        (out / _FILLING).unlink(missing_ok=True)
+        (out / f"{_FILLING}.{os.getpid()}").unlink(missing_ok=True)
         raise
 
 
@@ -628,19 +639,20 @@ def _expected_names(marker: dict) -> set[str] | None:
 
 def _filling_of(out: Path) -> str | None:
     """The temporary folder's name that ``out``'s :data:`_FILLING` names (a fill under way or killed), or None."""
-    if out.is_symlink() or not out.is_dir():
+    mark = out / _FILLING
+    if out.is_symlink() or not out.is_dir() or mark.is_symlink() or not mark.is_file():
         return None
     try:
-        return (out / _FILLING).read_text()
+        return mark.read_text()
     except (OSError, UnicodeDecodeError):
         return None
 
 
 def _begun_fill(out: Path, tmp: Path) -> bool:
     """True when ``tmp``, a complete output (our ``path.json``, no :data:`_PARTIAL`), was being moved into
-    ``out``: ``out``'s :data:`_FILLING` names it, and ``out`` holds no ``path.json`` yet."""
+    ``out``: ``out``'s :data:`_FILLING` names it, and ``out`` holds no whole ``path.json`` of ours yet."""
     return (_is_ours(tmp) and not (tmp / _PARTIAL).exists() and _filling_of(out) == tmp.name
-            and not (out / _MARKER).exists())
+            and not _is_ours(out))   # (a path.json cut short by a kill while it was copied is not ours)
 
 
 def _missing_folders(folder: Path) -> list[Path]:
@@ -737,13 +749,19 @@ def recover_interrupted(out: Path) -> list[str]:
 
 
 def _tidy_filling(out: Path, tmp_name) -> list[str]:
-    """The last part of :func:`recover_interrupted`: ``out``'s :data:`_FILLING` left by a dead render."""
+    """The last part of :func:`recover_interrupted`: ``out``'s :data:`_FILLING` left by a dead render (and the
+    part of one, ``.senerf-render-filling.PID``, a kill left before its rename)."""
+    if out.is_dir() and not out.is_symlink():
+        for part in out.iterdir():
+            pid = re.fullmatch(rf"{re.escape(_FILLING)}\.(\d+)", part.name)
+            if pid and part.is_file() and _process_gone(int(pid.group(1))):
+                part.unlink(missing_ok=True)
     named = _filling_of(out)
     match = tmp_name.fullmatch(named) if named is not None else None
     if match is None or not _process_gone(int(match.group(1))):
         return []
     tmp = out.parent / named
-    if (out / _MARKER).exists():   # killed once the output landed, before the mark went
+    if _is_ours(out):   # killed once the output landed, before the mark went
         if tmp.is_dir() and not tmp.is_symlink() and not any(tmp.iterdir()):
             tmp.rmdir()
         (out / _FILLING).unlink(missing_ok=True)

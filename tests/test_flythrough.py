@@ -886,6 +886,47 @@ def test_a_replacement_in_place_killed_midway_is_finished_without_the_earlier_fr
         assert not tmp.exists()
 
 
+def test_a_killed_fill_survives_an_interrupted_or_cut_short_recovery(tmp_path, monkeypatch):
+    # Catches (second review): recovery's own _fill, interrupted, removed the dead call's mark, so the next call threw
+    # the complete temporary folder away and left the folder half filled for good; a path.json cut short by a kill
+    # while it was copied across file systems counted as landed, with the same end; a part of the mark
+    # (.senerf-render-filling.PID) left by a kill stayed.
+    from senerf.flythrough import _check_out, _PARTIAL
+
+    real = shutil.move
+    for case in ("interrupted", "cut short"):
+        mine = tmp_path / case / "mine"
+        mine.mkdir(parents=True)
+        tmp = tmp_path / case / f".mine.{_dead_pid()}.abc_1234"
+        names = _earlier_output(tmp, 2)
+        (mine / ".senerf-render-filling").write_text(tmp.name)
+        (mine / f".senerf-render-filling.{_dead_pid()}").write_text("x")   # a kill before a mark's rename
+        for name in names[:2]:
+            (tmp / name).rename(mine / name)
+        if case == "interrupted":
+            calls = []
+
+            def move(source, target):
+                calls.append(source)
+                if len(calls) == 2:
+                    raise KeyboardInterrupt
+                return real(source, target)
+            monkeypatch.setattr(shutil, "move", move)
+            with pytest.raises(KeyboardInterrupt):
+                _check_out(mine, overwrite=False)
+            monkeypatch.undo()
+            assert (mine / ".senerf-render-filling").read_text() == tmp.name   # the dead call's mark stays
+        else:
+            for name in names:
+                if name != "path.json" and (tmp / name).exists():
+                    (tmp / name).rename(mine / name)
+            (mine / "path.json").write_text('{"senerf_ren')   # killed while path.json was copied
+        with pytest.warns(UserWarning, match="finished .*mine, which an interrupted senerf-render had begun"):
+            _check_out(mine, overwrite=True)
+        assert sorted(p.name for p in mine.iterdir()) == names and not tmp.exists(), case
+        assert json.loads((mine / "path.json").read_text())["senerf_render"] == "x" and not (mine / _PARTIAL).exists()
+
+
 def test_what_an_interrupted_replacement_in_place_left_is_emptied_or_refused_while_it_runs(runs, tmp_path, capsys):
     # Catches: a second Ctrl-C while _refill undid the first left earlier frames without path.json and no temporary
     # folder (write_frames removed it): every later render refused the folder (review).  And a folder holding only
