@@ -587,9 +587,14 @@ def _mark_filling(out: Path, tmp: Path) -> None:
     """Write ``out``'s :data:`_FILLING`, naming ``tmp``, whole or not at all: written as
     ``.senerf-render-filling.PID`` first, then renamed (:func:`_tidy_filling` removes such a part of a dead
     process)."""
-    part = out / f"{_FILLING}.{os.getpid()}"
+    part = _filling_part(out)
     part.write_text(tmp.name)
     os.replace(part, out / _FILLING)
+
+
+def _filling_part(out: Path) -> Path:
+    """Where :func:`_mark_filling` writes ``out``'s mark before its rename (``.senerf-render-filling.PID``)."""
+    return out / f"{_FILLING}.{os.getpid()}"
 
 
 def _replaced_in_place(out: Path) -> bool:
@@ -624,7 +629,7 @@ def _refill(out: Path, tmp: Path) -> None:
     except BaseException:
         _remove_ours(out)
         (out / _FILLING).unlink(missing_ok=True)
-        (out / f"{_FILLING}.{os.getpid()}").unlink(missing_ok=True)
+        _filling_part(out).unlink(missing_ok=True)
         raise
 
 
@@ -718,22 +723,20 @@ def recover_interrupted(out: Path) -> list[str]:
         match = old or tmp
         if match is None or not _process_gone(int(match.group(1))):
             continue
-        if old and entry.is_symlink() and _is_ours(entry):   # a link --overwrite had moved aside
+        link = entry.is_symlink()
+        if old and (link or entry.is_dir()) and _is_ours(entry):   # the earlier output, or a link to it, moved aside
+            what = "the link to the earlier output" if link else "the earlier output"
             if out.exists() or out.is_symlink():
-                entry.unlink()
-                done.append(f"removed {entry.name}, the link to the earlier output an interrupted {PROG} had replaced")
+                if link:
+                    entry.unlink()
+                else:
+                    shutil.rmtree(entry, ignore_errors=True)
+                done.append(f"removed {entry.name}, {what} an interrupted {PROG} had replaced")
             else:
                 entry.rename(out)
-                done.append(f"restored {out}, the link an interrupted {PROG} had moved aside")
-        elif not entry.is_dir() or entry.is_symlink():
+                done.append(f"restored {out}, {what} an interrupted {PROG} had moved aside")
+        elif link or not entry.is_dir():
             continue
-        elif old and _is_ours(entry):
-            if out.exists():
-                shutil.rmtree(entry, ignore_errors=True)
-                done.append(f"removed {entry.name}, the earlier output an interrupted {PROG} had replaced")
-            else:
-                entry.rename(out)
-                done.append(f"restored {out}, the earlier output an interrupted {PROG} had moved aside")
         elif tmp and _begun_fill(out, entry):
             expected = _expected_names(_marker(entry))
             if expected is not None:   # frames of an output replaced in place (_refill) that the new one lacks
@@ -753,7 +756,7 @@ def _tidy_filling(out: Path, tmp_name) -> list[str]:
     part of one, ``.senerf-render-filling.PID``, a kill left before its rename)."""
     if out.is_dir() and not out.is_symlink():
         for part in out.iterdir():
-            pid = re.fullmatch(rf"{re.escape(_FILLING)}\.(\d+)", part.name)
+            pid = re.fullmatch(rf"{re.escape(_FILLING)}\.(\d+)", part.name)   # (_filling_part's names)
             if pid and part.is_file() and _process_gone(int(pid.group(1))):
                 part.unlink(missing_ok=True)
     named = _filling_of(out)

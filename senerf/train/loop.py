@@ -194,9 +194,10 @@ def train_field(field: torch.nn.Module, rays: RayBatchSource, cfg: TrainConfig,
             field's shapes, not the pixels: a caller that changes the images keeps its own record (senerf-fit's
             ``run.json`` and ``run_selftraining``'s ``scene_files.json`` hold the scene files' digests).  On the
             CPU a resume ends bit for bit as an uninterrupted run on the same host (another thread count, processor,
-            torch or NumPy: a warning naming it); on CUDA it continues the same random stream, but CUDA's ``index_add_`` and
-            ``cumsum`` are not deterministic, so not to the bit; on another device type (CPU <-> CUDA) the ray
-            batches continue from a new stream seeded from ``(cfg.seed, step)``, with a warning.
+            torch or NumPy: a warning naming it); on CUDA it continues the same random stream, but CUDA's
+            ``index_add_`` and ``cumsum`` are not deterministic, so not to the bit; on another device type
+            (CPU <-> CUDA) the ray batches continue from a new stream seeded from ``(cfg.seed, step)``, with a
+            warning.
         progress: show a tqdm bar (step, loss, PSNR, rays/s).
         log_every: steps between history entries / progress updates.
 

@@ -13,10 +13,10 @@ import numpy as np
 
 from senerf import __version__
 from senerf.data import view_names
-from senerf.memory import cpu_model   # re-exported: metrics.json rows name the processor
+from senerf.memory import cpu_model
 
 __all__ = ["metrics_document", "iteration_row", "host_record", "host_change", "resume_host_line",
-           "finished_metrics", "cpu_model"]
+           "finished_metrics"]
 
 
 def metrics_document(scene, train_idx, test_idx, command, config: dict) -> dict:
@@ -33,12 +33,12 @@ def metrics_document(scene, train_idx, test_idx, command, config: dict) -> dict:
 
 def host_record(device) -> dict:
     """What a fit's figures depend on beyond its settings: the device (``'cpu'`` or the GPU's name), torch's CPU
-    thread count, the processor (:func:`cpu_model`) and the torch and NumPy versions.  On the CPU a fit is the
-    same to the bit for the same seed, thread count, processor and builds; with another thread count the float
-    sums run in another order (lego Extreme fast seed 0, 25 test views: 16.708767 -> 17.431559 dB with 2 threads,
-    16.653053 -> 17.420419 with 1; BENCHMARKS.md, session 19), and another processor takes other kernels (lego
-    Extreme balanced seed 0, 2 threads: a teacher of 15.252562 dB on an AMD EPYC, 14.650693 on an Intel Xeon;
-    session 23).  On CUDA repeated runs differ (``index_add_`` and ``cumsum`` are not deterministic there)."""
+    thread count, the processor (:func:`senerf.memory.cpu_model`) and the torch and NumPy versions.  On the CPU a
+    fit is the same to the bit for the same seed, thread count, processor and builds; with another thread count
+    the float sums run in another order (lego Extreme fast seed 0, 25 test views: 16.708767 -> 17.431559 dB with 2
+    threads, 16.653053 -> 17.420419 with 1; BENCHMARKS.md, session 19), and another processor takes other kernels
+    (lego Extreme balanced seed 0, 2 threads: a teacher of 15.252562 dB on an AMD EPYC, 14.650693 on an Intel
+    Xeon; session 23).  On CUDA repeated runs differ (``index_add_`` and ``cumsum`` are not deterministic there)."""
     import torch
 
     device = torch.device(device)

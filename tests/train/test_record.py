@@ -27,7 +27,8 @@ def test_each_row_records_the_host_that_finished_it(monkeypatch):
     import numpy as np
     import torch
 
-    from senerf.train import cpu_model, host_record, iteration_row
+    from senerf.memory import cpu_model
+    from senerf.train import host_record, iteration_row
 
     ev = {"psnr": 20.0, "ssim": 0.5, "lpips": "unavailable", "avg": "unavailable", "per_view": {"psnr": [20.0]}}
     threads = torch.get_num_threads()
