@@ -704,7 +704,7 @@ def recover_interrupted(out: Path) -> list[str]:
       ``out`` when the kill came before the new output took its place, removed when it came after (``out`` is
       then whole).
     * ``.NAME.PID.xxxxxxxx``, a temporary folder holding :data:`_PARTIAL` (or, once complete, our
-      ``path.json``): removed; a complete one whose files were being moved into the user's folder ``out``
+      ``path.json``, or nothing: a fill moved all of it and was killed before it removed the folder): removed; a complete one whose files were being moved into the user's folder ``out``
       (:func:`_fill`, :func:`_refill`: ``out``'s :data:`_FILLING` names it) has the rest moved in first, after the
       earlier output's files the new one lacks are removed.
     * ``out``'s :data:`_FILLING` of a dead render: removed once ``out`` holds its ``path.json`` (with the emptied
@@ -747,6 +747,11 @@ def recover_interrupted(out: Path) -> list[str]:
         elif tmp and ((entry / _PARTIAL).is_file() or _is_ours(entry)):
             shutil.rmtree(entry, ignore_errors=True)
             done.append(f"removed {entry.name}, a partial folder an interrupted {PROG} left")
+        elif tmp and not any(entry.iterdir()) and _filling_of(out) != entry.name:
+            # emptied by a fill that finished (its mark gone) and was killed before it removed the folder; a
+            # folder the mark still names is _tidy_filling's
+            entry.rmdir()
+            done.append(f"removed {entry.name}, an empty folder an interrupted {PROG} left")
     done += _tidy_filling(out, tmp_name)
     return done
 

@@ -723,8 +723,9 @@ def test_what_a_killed_render_left_is_tidied_and_the_earlier_output_restored(tmp
     live = tmp_path / f".orbit_iter1.{alive}.abc_1234"   # a render still running: left alone
     live.mkdir()
     (live / _PARTIAL).touch()
-    foreign = tmp_path / f".orbit_iter1.{dead}.userdata"  # no marker: not ours, left alone
+    foreign = tmp_path / f".orbit_iter1.{dead}.userdata"  # no marker, something inside: not ours, left alone
     foreign.mkdir()
+    (foreign / "notes.txt").write_text("mine")
     with pytest.warns(UserWarning) as caught:
         _check_out(out, overwrite=True)
     texts = sorted(str(w.message) for w in caught)
@@ -739,6 +740,30 @@ def test_what_a_killed_render_left_is_tidied_and_the_earlier_output_restored(tmp
     (tmp_path / f".orbit_iter1.old-{dead}").mkdir()
     _check_out(out, overwrite=True)
     assert (tmp_path / f".orbit_iter1.old-{dead}").exists()
+
+
+def test_an_emptied_temporary_folder_of_a_dead_render_is_removed(tmp_path):
+    # Catches: the hidden folder a kill left between a finished fill (every file moved into --out, the mark gone)
+    # and the folder's removal staying beside the output for good (session 23's note).  An empty folder of a live
+    # render (between mkdtemp and its marker) and a dead one's folder holding anything stay.
+    import os
+
+    from senerf.flythrough import _check_out, write_frames
+
+    rgb = np.zeros((2, 4, 4, 3), np.uint8)
+    out = write_frames(tmp_path / "mine", dict(rgb=rgb, depth=rgb), {"senerf_render": "x"}, fps=10.0)
+    dead = _dead_pid()
+    emptied = tmp_path / f".mine.{dead}.abc_1234"
+    emptied.mkdir()
+    live = tmp_path / f".mine.{os.getpid()}.abc_1234"
+    live.mkdir()
+    held = tmp_path / f".mine.{dead}.xyz_1234"
+    held.mkdir()
+    (held / "notes.txt").write_text("mine")
+    with pytest.warns(UserWarning, match=f"removed .mine.{dead}.abc_1234, an empty folder an interrupted"):
+        _check_out(out, overwrite=True)
+    assert not emptied.exists() and live.is_dir() and (held / "notes.txt").read_text() == "mine"
+    assert (out / "path.json").is_file()
 
 
 def test_a_fill_of_an_empty_folder_killed_midway_is_finished_by_the_next_render(tmp_path):
