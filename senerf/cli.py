@@ -28,7 +28,7 @@ from pathlib import Path
 
 from senerf import __version__
 from senerf.cliargs import (SEED_MAX, THREADS_HELP, OneLineParser, argument_type, check_device, float_flag, int_flag,
-                            run_command, set_threads, short_openmp_waits, threads_flag)
+                            run_command, set_threads, short_openmp_waits, threads_flag, warn_planes_path)
 from senerf.errors import InputError
 from senerf.memory import physical_memory_bytes
 
@@ -544,6 +544,7 @@ def _run(args, argv) -> int:
                          f"(a cube in world units) applies to object scenes", file=scene_dir, field="--aabb")
     model = choose_model(scene, train_idx, {**PRESETS[args.preset]["model"], **_model_overrides(args)})
     _check_model_fits(model, device)
+    warn_planes_path(PROG, model, device)
     _check_test_views(scene, train_idx, test_idx, model, scene_dir)
     if fmt == "colmap" and scene.kind == "object":
         _warn_points_outside(scene_dir, model)

@@ -19,8 +19,8 @@ from typing import NoReturn
 from senerf.errors import InputError
 
 __all__ = ["OneLineParser", "console_entry", "argument_type", "int_flag", "float_flag", "check_device", "threads_flag",
-           "set_threads", "short_openmp_waits", "run_command", "SEED_MAX", "THREADS_MAX", "THREADS_HELP",
-           "OPENMP_SPINS"]
+           "set_threads", "short_openmp_waits", "warn_planes_path", "run_command", "SEED_MAX", "THREADS_MAX",
+           "THREADS_HELP", "OPENMP_SPINS"]
 
 #: Largest seed either command accepts (torch generators take a signed 64-bit seed).
 SEED_MAX = 2**63 - 1
@@ -142,6 +142,18 @@ def set_threads(threads: int | None) -> None:
 #: Spins an idle OpenMP worker makes before it sleeps (GNU libgomp, torch's OpenMP on Linux), senerf-fit's and
 #: senerf-render's default; see :func:`short_openmp_waits`.
 OPENMP_SPINS = 1000
+
+
+def warn_planes_path(prog: str, model, device: str) -> None:
+    """Print ``PROG: warning: ...`` to stderr when ``model`` (a :class:`senerf.train.ModelConfig`) is a K-Planes
+    field on the CPU and its compiled kernel cannot be used (no C compiler: the pure-PyTorch path runs, slower and
+    to other bits; :func:`senerf.fields.ckernel.cpu_planes_warning`)."""
+    if model.field == "kplanes" and device.split(":")[0] == "cpu":
+        from senerf.fields.ckernel import cpu_planes_warning
+
+        line = cpu_planes_warning(model.n_features)
+        if line is not None:
+            print(f"{prog}: warning: {line}", file=sys.stderr)
 
 
 def short_openmp_waits(environ=os.environ) -> None:

@@ -40,7 +40,7 @@ import numpy as np
 
 from senerf import __version__
 from senerf.cliargs import (THREADS_HELP, OneLineParser, check_device, float_flag, int_flag, run_command, set_threads,
-                            short_openmp_waits, threads_flag)
+                            short_openmp_waits, threads_flag, warn_planes_path)
 from senerf.errors import InputError
 from senerf.memory import physical_memory_bytes
 
@@ -918,6 +918,7 @@ def _run(args, argv: list[str]) -> int:
         args.out = _absolute(args.out)   # `--out .` has no name to make a sibling of
         finished = _check_out(args.out, args.overwrite, command)   # before loading anything
     run = load_fitted_run(args.run, args.iteration, device)
+    warn_planes_path(PROG, run.model, device)
     path = args.path or ("spiral" if run.scene.kind == "forward_facing" else "orbit")
     if args.elevation is not None and path != "orbit":
         raise InputError("applies to --path orbit only", field="--elevation")

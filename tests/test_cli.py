@@ -982,3 +982,24 @@ def test_self_training_that_extends_a_baseline_run_does_not_score_the_teacher_ag
     assert rows[0]["per_view"] == baseline[0]["per_view"] and rows[0]["psnr"] == baseline[0]["psnr"]
     assert recorded <= rows[0]["seconds"] < baseline[0]["seconds"] + 5.0   # the recorded training and scoring
     assert not list((out / "checkpoints").glob("iter_*_eval.json"))   # removed once metrics.json holds them
+
+
+def test_a_fit_without_the_compiled_kernel_says_so_and_records_it(tiny_scene, tmp_path, capsys, monkeypatch):
+    """Catches: senerf-fit on a machine without a C compiler running the slower pure-PyTorch planes without a word,
+    its metrics.json rows indistinguishable from the kernel's (session 24)."""
+    import senerf.fields.ckernel as ck
+
+    monkeypatch.setattr(ck, "load_kernel", lambda dtype, n_features=16: None)
+    monkeypatch.setitem(ck._STATUS, "status", "unavailable: OSError: no C compiler found")
+    out = tmp_path / "run"
+    assert main([str(tiny_scene), "--out", str(out), *TINY]) == 0
+    err = capsys.readouterr().err
+    assert ("senerf-fit: warning: the compiled K-Planes kernel cannot be used (OSError: no C compiler found)"
+            in err), err
+    rows = json.loads((out / "metrics.json").read_text())["iterations"]
+    assert rows and all(row["host"]["kernel"] == "pytorch" for row in rows)
+    monkeypatch.undo()
+    if ck.load_kernel(__import__("torch").float32) is None:
+        pytest.skip("no C compiler here: the fit with the kernel cannot be checked")
+    assert main([str(tiny_scene), "--out", str(tmp_path / "again"), *TINY]) == 0
+    assert "K-Planes kernel" not in capsys.readouterr().err   # with the kernel: no line

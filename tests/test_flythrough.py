@@ -1394,3 +1394,17 @@ def test_out_is_made_absolute_with_its_folder_resolved_and_its_name_kept(tmp_pat
     assert _absolute(Path("link/..")) == tmp_path / "target"
     assert _absolute(Path("link")) == tmp_path / "link"
     assert _absolute(Path(".")) == tmp_path and _absolute(Path("a/b")) == tmp_path / "a" / "b"
+
+
+def test_a_render_without_the_compiled_kernel_says_so(runs, tmp_path, capsys, monkeypatch):
+    """Catches: senerf-render running the slower pure-PyTorch planes without a word where no C compiler is found
+    (session 24); the frames are still written."""
+    import senerf.fields.ckernel as ck
+
+    monkeypatch.setattr(ck, "load_kernel", lambda dtype, n_features=16: None)
+    monkeypatch.setitem(ck._STATUS, "status", "unavailable: OSError: no C compiler found")
+    out = tmp_path / "t"
+    assert main([str(runs.base), "--path", "test", "--out", str(out), "--quiet"]) == 0
+    err = capsys.readouterr().err
+    assert "senerf-render: warning: the compiled K-Planes kernel cannot be used (OSError: no C compiler found)" in err
+    assert (out / "path.json").is_file()

@@ -24,7 +24,8 @@ from pathlib import Path
 
 import torch
 
-__all__ = ["load_kernel", "kernel_status", "fused_plane_features", "fused_sh4", "MAX_FEATURES", "MAX_SCALES"]
+__all__ = ["load_kernel", "kernel_status", "cpu_planes_path", "cpu_planes_warning", "fused_plane_features", "fused_sh4", "MAX_FEATURES",
+           "MAX_SCALES"]
 
 MAX_FEATURES = 256
 MAX_SCALES = 8
@@ -108,6 +109,35 @@ def load_kernel(dtype: torch.dtype, n_features: int = 16):
 def kernel_status() -> str:
     """``'loaded'``, ``'not loaded'`` or ``'unavailable: <reason>'``."""
     return _STATUS["status"]
+
+
+def cpu_planes_path(n_features: int = 16) -> str:
+    """Which code K-Planes fields of ``n_features`` per plane run on the CPU: ``'compiled'`` (this module's
+    kernel, built or found in the cache now) or ``'pytorch'`` (the pure-PyTorch gather path of
+    :mod:`senerf.fields.interp`, when the kernel cannot be built: :func:`kernel_status` says why).
+
+    The two sum in other orders, so a fit's figures differ in their last bits between them, and the PyTorch path
+    is slower (lego Extreme at 100x100, fast preset's teacher, 2 cores: 37 s against 23 s of fitting; BENCHMARKS.md,
+    session 24).
+
+    Example:
+        >>> cpu_planes_path() in ("compiled", "pytorch")
+        True
+    """
+    return "compiled" if n_features <= MAX_FEATURES and load_kernel(torch.float32, n_features) is not None \
+        else "pytorch"
+
+
+def cpu_planes_warning(n_features: int = 16) -> str | None:
+    """The warning a command prints before it fits or renders K-Planes fields of ``n_features`` per plane on the
+    CPU without the compiled kernel (:func:`cpu_planes_path` ``'pytorch'``), naming why; None with the kernel."""
+    if cpu_planes_path(n_features) == "compiled":
+        return None
+    why = f"more than {MAX_FEATURES} features per plane" if n_features > MAX_FEATURES \
+        else kernel_status().removeprefix("unavailable: ")
+    return (f"the compiled K-Planes kernel cannot be used ({why}); the pure-PyTorch path runs instead: slower (1.6x "
+            f"measured), and its figures differ in their last digits from the kernel's (a C compiler on PATH, or $CC, "
+            f"gives the kernel)")
 
 
 def _split(n: int, parts: int) -> list[tuple[int, int]]:

@@ -38,21 +38,28 @@ def host_record(device) -> dict:
     the float sums run in another order (lego Extreme fast seed 0, 25 test views: 16.708767 -> 17.431559 dB with 2
     threads, 16.653053 -> 17.420419 with 1; BENCHMARKS.md, session 19), and another processor takes other kernels
     (lego Extreme balanced seed 0, 2 threads: a teacher of 15.252562 dB on an AMD EPYC, 14.650693 on an Intel
-    Xeon; session 23).  On CUDA repeated runs differ (``index_add_`` and ``cumsum`` are not deterministic there)."""
+    Xeon; session 23).  On the CPU it also records which code runs K-Planes' planes (``kernel``: ``'compiled'`` or,
+    without a C compiler, ``'pytorch'``; :func:`senerf.fields.ckernel.cpu_planes_path`), whose sums differ in
+    order.  On CUDA repeated runs differ (``index_add_`` and ``cumsum`` are not deterministic there)."""
     import torch
+
+    from senerf.fields.ckernel import cpu_planes_path
 
     device = torch.device(device)
     name = torch.cuda.get_device_name(device) if device.type == "cuda" else device.type
     # plain str: torch.__version__ is a TorchVersion, which a weights_only checkpoint load refuses
-    return {"device": str(name), "threads": int(torch.get_num_threads()), "cpu": cpu_model(),
+    host = {"device": str(name), "threads": int(torch.get_num_threads()), "cpu": cpu_model(),
             "torch": str(torch.__version__), "numpy": str(np.__version__)}
+    if device.type == "cpu":
+        host["kernel"] = cpu_planes_path()
+    return host
 
 
 def host_change(before: dict | None, now: dict) -> str:
     """How a recorded :func:`host_record` ``before`` differs from ``now``, in words, or ``''`` when it does not
     (or when ``before`` is not a dict: ``metrics.json`` rows written before session 19 and training checkpoints
-    written before session 20 record no host; a key only one side records, such as ``cpu`` before session 23, is
-    no difference).
+    written before session 20 record no host; a key only one side records, such as ``cpu`` before session 23 or
+    ``kernel`` before session 24, is no difference).
 
     Example:
         >>> host_change({"device": "cpu", "threads": 16}, {"device": "cpu", "threads": 1})
@@ -61,7 +68,7 @@ def host_change(before: dict | None, now: dict) -> str:
     if not isinstance(before, dict):
         return ""
     words = {"device": "on {}", "threads": "with {} thread{}", "cpu": "with processor {}", "torch": "with torch {}",
-             "numpy": "with NumPy {}"}
+             "numpy": "with NumPy {}", "kernel": "with the {} K-Planes code"}
     keys = [k for k in words if k in before and k in now and before[k] != now[k]]
 
     def said(host: dict) -> str:

@@ -27,6 +27,7 @@ def test_each_row_records_the_host_that_finished_it(monkeypatch):
     import numpy as np
     import torch
 
+    from senerf.fields.ckernel import cpu_planes_path
     from senerf.memory import cpu_model
     from senerf.train import host_record, iteration_row
 
@@ -35,7 +36,7 @@ def test_each_row_records_the_host_that_finished_it(monkeypatch):
     try:
         torch.set_num_threads(1)
         assert host_record("cpu") == {"device": "cpu", "threads": 1, "cpu": cpu_model(), "torch": torch.__version__,
-                                      "numpy": np.__version__}
+                                      "numpy": np.__version__, "kernel": cpu_planes_path()}
         torch.set_num_threads(2)
         row = iteration_row(1, ev, 0.25, 3.0, torch.device("cpu"))
     finally:
@@ -46,6 +47,7 @@ def test_each_row_records_the_host_that_finished_it(monkeypatch):
     # a GPU is named, not just "cuda" (no GPU needed to check: torch is asked for the name)
     monkeypatch.setattr(torch.cuda, "get_device_name", lambda device=None: f"Fake GPU {torch.device(device)}")
     assert host_record("cuda:1")["device"] == "Fake GPU cuda:1"
+    assert "kernel" not in host_record("cuda:1")   # the compiled kernel is the CPU's
     assert iteration_row(1, ev, None, 1.0, "cuda:1")["host"]["device"] == "Fake GPU cuda:1"
 
 
@@ -60,6 +62,8 @@ def test_host_change_names_what_differs_in_words():
         "with 1 thread, with torch 2.11.0, this call with 2 threads, with torch 2.13.0")
     assert host_change(dict(here, cpu="AMD EPYC 9B14"), dict(here, cpu="Intel(R) Xeon(R) Processor")) == (
         "with processor AMD EPYC 9B14, this call with processor Intel(R) Xeon(R) Processor")
+    assert host_change(dict(here, kernel="compiled"), dict(here, kernel="pytorch")) == (
+        "with the compiled K-Planes code, this call with the pytorch K-Planes code")
     # a key only one side records (a later version's, or an earlier one's) is not a difference
     assert host_change({"device": "cpu", "threads": 2}, dict(here, threads=2)) == ""
     assert host_change(dict(here, threads=2), {"device": "cpu", "threads": 2}) == ""
@@ -82,3 +86,21 @@ def test_a_resume_names_another_host_on_the_cpu_only(monkeypatch):
     assert resume_host_line(here, torch.device("cpu"), "x") == "" and resume_host_line(None, "cpu", "x") == ""
     monkeypatch.setattr(record_mod, "host_record", lambda device: dict(here, device="Fake GPU"))
     assert resume_host_line(dict(here, device="Fake GPU", threads=here["threads"] + 1), "cuda:0", "x") == ""
+
+
+def test_the_host_record_says_when_k_planes_runs_without_its_compiled_kernel(monkeypatch):
+    """Catches: a machine without a C compiler silently running the pure-PyTorch planes (1.6x slower, other bits)
+    with rows that look like the kernel's (session 24)."""
+    import senerf.fields.ckernel as ck
+    from senerf.train import host_record
+
+    monkeypatch.setattr(ck, "load_kernel", lambda dtype, n_features=16: None)
+    monkeypatch.setitem(ck._STATUS, "status", "unavailable: OSError: no C compiler found")
+    assert host_record("cpu")["kernel"] == "pytorch"
+    line = ck.cpu_planes_warning(16)
+    assert line.startswith("the compiled K-Planes kernel cannot be used (OSError: no C compiler found); the "
+                           "pure-PyTorch path runs instead")
+    assert "more than 256 features per plane" in ck.cpu_planes_warning(300)
+    monkeypatch.setattr(ck, "load_kernel", lambda dtype, n_features=16: object())
+    assert host_record("cpu")["kernel"] == "compiled" and ck.cpu_planes_warning(16) is None
+    assert ck.cpu_planes_path(300) == "pytorch"   # past MAX_FEATURES the fields take the PyTorch path
