@@ -704,9 +704,10 @@ def recover_interrupted(out: Path) -> list[str]:
       ``out`` when the kill came before the new output took its place, removed when it came after (``out`` is
       then whole).
     * ``.NAME.PID.xxxxxxxx``, a temporary folder holding :data:`_PARTIAL` (or, once complete, our
-      ``path.json``, or nothing: a fill moved all of it and was killed before it removed the folder): removed; a complete one whose files were being moved into the user's folder ``out``
-      (:func:`_fill`, :func:`_refill`: ``out``'s :data:`_FILLING` names it) has the rest moved in first, after the
-      earlier output's files the new one lacks are removed.
+      ``path.json``, or nothing: a fill moved all of it and was killed before it removed the folder): removed; a
+      complete one whose files were being moved into the user's folder ``out`` (:func:`_fill`, :func:`_refill`:
+      ``out``'s :data:`_FILLING` names it) has the rest moved in first, after the earlier output's files the new
+      one lacks are removed.
     * ``out``'s :data:`_FILLING` of a dead render: removed once ``out`` holds its ``path.json`` (with the emptied
       temporary folder); without ``path.json`` and with the temporary folder gone (an interrupt while an in-place
       replacement was undone), the senerf-render files it marks are removed too, leaving ``out`` empty of them.

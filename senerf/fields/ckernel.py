@@ -24,8 +24,8 @@ from pathlib import Path
 
 import torch
 
-__all__ = ["load_kernel", "kernel_status", "cpu_planes_path", "cpu_planes_warning", "fused_plane_features", "fused_sh4", "MAX_FEATURES",
-           "MAX_SCALES"]
+__all__ = ["load_kernel", "kernel_status", "cpu_planes_path", "cpu_planes_warning", "fused_plane_features",
+           "fused_sh4", "MAX_FEATURES", "MAX_SCALES"]
 
 MAX_FEATURES = 256
 MAX_SCALES = 8

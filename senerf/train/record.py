@@ -40,7 +40,8 @@ def host_record(device) -> dict:
     (lego Extreme balanced seed 0, 2 threads: a teacher of 15.252562 dB on an AMD EPYC, 14.650693 on an Intel
     Xeon; session 23).  On the CPU it also records which code runs K-Planes' planes (``kernel``: ``'compiled'`` or,
     without a C compiler, ``'pytorch'``; :func:`senerf.fields.ckernel.cpu_planes_path`), whose sums differ in
-    order.  On CUDA repeated runs differ (``index_add_`` and ``cumsum`` are not deterministic there)."""
+    order (recorded for every CPU row; only K-Planes fields use it).  On CUDA repeated runs differ (``index_add_``
+    and ``cumsum`` are not deterministic there)."""
     import torch
 
     from senerf.fields.ckernel import cpu_planes_path
@@ -81,9 +82,9 @@ def resume_host_line(before: dict | None, device, what: str) -> str:
     """The line a resume on ``device`` prints when the recorded host ``before`` differs from this call's, or ``''``:
     ``"{what} {host_change}: the rest is reproducible, but not bit for bit an uninterrupted run"``.
 
-    On the CPU only: there a run repeats to the bit for the same host, and another thread count, processor, torch
-    or NumPy breaks that.  ``''`` on a GPU, where runs do not repeat to the bit anyway (``index_add_`` and
-    ``cumsum``) and CPU threads hardly matter.  ``what`` says what ran on ``before`` ("selftrain: iteration 2 ran").
+    On the CPU only: there a run repeats to the bit for the same host, and another thread count, processor, torch,
+    NumPy or K-Planes code (``kernel``) breaks that.  ``''`` on a GPU, where runs do not repeat to the bit anyway
+    (``index_add_`` and ``cumsum``) and CPU threads hardly matter.  ``what`` says what ran on ``before`` ("selftrain: iteration 2 ran").
     """
     import torch
 
