@@ -300,6 +300,9 @@ PRESETS: dict[str, dict[str, Any]] = {
     # bought +0.54 ± 0.62 dB over fast (p = 0.045), and +0.81 ± 0.94 dB over 9 seeds of the current code
     # (session 16: 17.93 ± 0.41 against 17.12 ± 0.72 dB, p = 0.016).  A "quality" preset (3000 x 2048, 1 iteration,
     # 312 s) was removed: it cost as much as balanced (342 s) and gave less (17.75 ± 0.57 vs 17.92 ± 0.29 dB).
+    # Session 24 (6 seeds, Intel Xeon): 3000 x 1024 trains a 17.99 ± 0.27 dB teacher in ~145 s, level with balanced
+    # SE-NeRF's final; SE-NeRF on it reached 18.34 dB (3 iterations, 12-15 min) and 18.48 dB after its first
+    # iteration (5-7 min): the next preset candidate, not yet run through the ladder (BENCHMARKS.md).
     "fast": dict(train=dict(steps=600, batch_rays=1024), model={}, iterations=1),
     "balanced": dict(train=dict(steps=1000, batch_rays=4096), model={}, iterations=3),
 }
