@@ -124,8 +124,7 @@ def cpu_planes_path(n_features: int = 16) -> str:
         >>> cpu_planes_path() in ("compiled", "pytorch")
         True
     """
-    return "compiled" if n_features <= MAX_FEATURES and load_kernel(torch.float32, n_features) is not None \
-        else "pytorch"
+    return "pytorch" if load_kernel(torch.float32, n_features) is None else "compiled"   # (None past MAX_FEATURES)
 
 
 def cpu_planes_warning(n_features: int = 16) -> str | None:

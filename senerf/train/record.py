@@ -84,7 +84,8 @@ def resume_host_line(before: dict | None, device, what: str) -> str:
 
     On the CPU only: there a run repeats to the bit for the same host, and another thread count, processor, torch,
     NumPy or K-Planes code (``kernel``) breaks that.  ``''`` on a GPU, where runs do not repeat to the bit anyway
-    (``index_add_`` and ``cumsum``) and CPU threads hardly matter.  ``what`` says what ran on ``before`` ("selftrain: iteration 2 ran").
+    (``index_add_`` and ``cumsum``) and CPU threads hardly matter.  ``what`` says what ran on ``before``
+    ("selftrain: iteration 2 ran").
     """
     import torch
 

@@ -103,4 +103,5 @@ def test_the_host_record_says_when_k_planes_runs_without_its_compiled_kernel(mon
     assert "more than 256 features per plane" in ck.cpu_planes_warning(300)
     monkeypatch.setattr(ck, "load_kernel", lambda dtype, n_features=16: object())
     assert host_record("cpu")["kernel"] == "compiled" and ck.cpu_planes_warning(16) is None
+    monkeypatch.undo()   # the real loader refuses a count past MAX_FEATURES itself
     assert ck.cpu_planes_path(300) == "pytorch"   # past MAX_FEATURES the fields take the PyTorch path
