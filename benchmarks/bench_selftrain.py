@@ -3,7 +3,8 @@
 ``masks``: train a short baseline teacher, use held-out train-split poses (the ``--n-eval`` nearest in angle
 to the known views) as pseudo views with ground truth, and report precision / recall / false-positive rate
 of our reliable masks against masks from ground-truth colour (``mean |C_T - C_gt| < --max-error``), per
-feature extractor and threshold kind (paper: precision 98.03 %, recall 92.25 %).
+VGG-19 variant (layers normalised or plainly concatenated) and threshold kind (paper: precision 98.03 %, recall
+92.25 %).
 
 ``e2e``: the whole self-training run (``--iterations``, default 3) and a baseline given the run's whole
 wall-clock budget (``steps x run seconds / iteration-0 seconds`` steps); reports test PSNR per iteration,
@@ -12,7 +13,7 @@ gains and wall time
 
 ``labelling``: the cost of labelling pseudo views, per phase (teacher render, features, similarity), on
 ``--n-pseudo`` pseudo views of iteration 1 from a ``--steps`` teacher, each fast path against its peer measured
-in the same run on the same views: ``view_similarity(foreground_only=True)`` (what the controller calls) against
+in the same run on the same views: ``view_similarity(foreground_only=True)`` (what the labelling calls) against
 scoring every pixel, and ``bilinear_sample`` against ``bilinear_sample_reference`` on the same lookups; both
 pairs must agree exactly on what the labels use (checked, and printed).
 
@@ -22,7 +23,9 @@ Usage::
     python benchmarks/bench_selftrain.py e2e --steps 600 --iterations 3 --out /tmp/bench_st_e2e
     python benchmarks/bench_selftrain.py labelling --downscale 1 --steps 300 --n-pseudo 2 --out /tmp/bench_st_label
 
-Results are printed and written to ``OUT/bench_<mode>.json``.
+Results are printed and written to ``OUT/bench_<mode>.json`` (``masks`` also writes the markdown table
+``OUT/bench_masks.md`` and ``OUT/mask_quality.png``).  ``masks-table --json FILE`` prints the table of an earlier
+``masks`` result, e.g. ``python benchmarks/bench_selftrain.py masks-table --json benchmarks/results/mask-quality.json``.
 """
 
 from __future__ import annotations
@@ -51,20 +54,21 @@ def fewshot_test_views(scene) -> np.ndarray:
 
 def _load(args):
     from senerf.data import fewshot_split, load_scene
-    from senerf.train import choose_model, preset_train_config
+    from senerf.config import PRESETS
+    from senerf.train import choose_model
 
     scene = load_scene(DATA / "nerf_synthetic" / "lego", downscale=args.downscale)
     train_idx, test_idx = fewshot_split(scene, "extreme")
     test_idx = test_idx[:: args.test_stride]
     model = choose_model(scene, train_idx)
     over = {} if args.batch_rays is None else {"batch_rays": args.batch_rays}
-    tcfg = preset_train_config(args.preset, steps=args.steps, seed=args.seed, **over)
+    tcfg = PRESETS[args.preset].train_config(steps=args.steps, seed=args.seed, **over)
     return scene, train_idx, test_idx, model, tcfg
 
 
 def _nearest_held_out(scene, train_idx, test_idx, n: int) -> tuple[np.ndarray, np.ndarray]:
     """The ``n`` held-out views (neither known nor test) nearest in angle to a known view, and their angles
-    (degrees): the oracle's choice (:func:`senerf.selftrain.dataset_pseudo_views`)."""
+    (degrees): :func:`senerf.selftrain.dataset_pseudo_views`."""
     from senerf import geometry
     from senerf.selftrain import dataset_pseudo_views
 
@@ -74,8 +78,9 @@ def _nearest_held_out(scene, train_idx, test_idx, n: int) -> tuple[np.ndarray, n
 
 
 def bench_masks(args) -> dict:
-    from senerf.selftrain import SelfTrainConfig, make_feature_extractor, reliability_mask_quality
-    from senerf.selftrain.controller import known_images
+    from senerf.config import SelfTrainConfig
+    from senerf.selftrain import VGG19Features, reliability_mask_quality
+    from senerf.selftrain import known_images
     from senerf.train import RayBatchSource, build_field, evaluate, render_views, train_field
 
     scene, train_idx, test_idx, model, tcfg = _load(args)
@@ -97,15 +102,12 @@ def bench_masks(args) -> dict:
           f"{len(eval_idx)} held-out poses {angles.min():.1f} - {angles.max():.1f} deg from the nearest input, "
           f"rendered in {t_render:.0f} s")
     rows = []
-    extractors = [("vgg19", dict(normalize_layers=True)), ("vgg19", dict(normalize_layers=False)), ("daisy", {})]
-    thresholds = [("adaptive", {}), ("fixed", {}), ("unified", {})]
-    for name, kw in extractors:
-        ext = make_feature_extractor(name, **kw)
-        label = name + ("" if name != "vgg19" else ("-norm" if kw["normalize_layers"] else "-concat"))
+    for normalize in (True, False):
+        ext = VGG19Features(normalize_layers=normalize)
+        label = "vgg19-norm" if normalize else "vgg19-concat"
         feats = ext(known_images(scene, train_idx, model))
-        for kind, _ in thresholds:
-            cfg = SelfTrainConfig(features=name, threshold=kind,
-                                  normalize_layers=kw.get("normalize_layers", True))
+        for kind in ("adaptive", "fixed", "unified"):
+            cfg = SelfTrainConfig(threshold=kind, normalize_layers=normalize)
             t1 = time.perf_counter()
             q, labels = reliability_mask_quality(teacher, occ, model, scene, train_idx, eval_idx, ext, cfg,
                                                  cfg.alpha(1), max_error=args.max_error, known_features=feats,
@@ -117,9 +119,7 @@ def bench_masks(args) -> dict:
                   f"precision {100 * q['precision']:.2f} % recall {100 * q['recall']:.2f} % "
                   f"FPR {100 * q['fpr']:.2f} %  predicted-reliable {100 * q['predicted_reliable_rate']:.1f} % "
                   f"(GT-reliable rate {100 * q['gt_reliable_rate']:.1f} %)")
-    from senerf.bench.plots import plot_mask_quality
-
-    png = plot_mask_quality([dict(r, feature=r["features"]) for r in rows], out / "mask_quality.png",
+    png = plot_mask_quality(rows, out / "mask_quality.png",
                             f"lego Extreme @100: reliable masks vs ground-truth colour masks "
                             f"({len(eval_idx)} held-out poses, teacher {ev['psnr']:.1f} dB)")
     print(f"wrote {png}")
@@ -129,15 +129,57 @@ def bench_masks(args) -> dict:
                 max_error=args.max_error, rows=rows)
 
 
+def plot_mask_quality(rows: list[dict], path: Path, title: str) -> Path:
+    """Grouped bars of precision, recall and false-positive rate per (VGG-19 variant, threshold) row."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    x = np.arange(len(rows))
+    fig = Figure(figsize=(max(5.0, 1.4 * len(rows)), 4.2))
+    FigureCanvasAgg(fig)
+    ax = fig.subplots()
+    for k, name in enumerate(("precision", "recall", "fpr")):
+        ax.bar(x + (k - 1) * 0.27, [r[name] for r in rows], width=0.27, label=name)
+    ax.set_xticks(x, [f"{r['features']}\n{r['threshold']}" for r in rows], fontsize=8)
+    ax.set_ylim(0, 1)
+    ax.grid(axis="y", alpha=0.3)
+    ax.legend(fontsize=8)
+    ax.set_title(title, fontsize=9)
+    fig.savefig(path, dpi=120, bbox_inches="tight")
+    return path
+
+
+def mask_quality_markdown(doc: dict, source: str) -> str:
+    """Markdown table of a ``masks`` result (``bench_masks.json``, read from ``source``)."""
+    angles = doc["eval_angles_deg"]
+    pct = lambda v: f"{100 * v:.2f} %"  # noqa: E731
+    machine = doc.get("machine") or {}
+    head = [f"### Reliability masks vs ground-truth colour masks ({source})", "",
+            f"- Made by: `python {' '.join(doc['argv'])}` at commit {doc.get('commit', 'unknown')}, "
+            f"{doc.get('timestamp', 'time unknown')[:16]}, {machine.get('cpu', '?')}, "
+            f"torch {machine.get('torch', '?')}",
+            f"- Teacher: {doc['steps']} steps x {doc['batch_rays']} rays, {doc['teacher_psnr']:.2f} dB on the test "
+            f"views; {len(angles)} held-out dataset poses {min(angles):.1f}-{max(angles):.1f} degrees from an input "
+            f"view as pseudo views; ground truth: teacher colour within {doc['max_error']:g} (mean |dRGB|) of the "
+            "photo.",
+            "- Paper (800x800, its own teacher): precision 98.03 %, recall 92.25 %.", "",
+            "| features | threshold | tau | precision | recall | false-positive rate | predicted reliable | "
+            "ground-truth reliable |", "|" + "---|" * 8]
+    return "\n".join(head + [
+        f"| {r['features']} | {r['threshold']} | {'soft' if r.get('tau') is None else format(r['tau'], '.3f')} | "
+        f"{pct(r['precision'])} | {pct(r['recall'])} | {pct(r['fpr'])} | {pct(r['predicted_reliable_rate'])} | "
+        f"{pct(r['gt_reliable_rate'])} |" for r in doc["rows"]]) + "\n"
+
+
 def bench_e2e(args) -> dict:
-    from senerf.selftrain import SelfTrainConfig, run_selftraining
+    from senerf.config import SelfTrainConfig
+    from senerf.selftrain import run_selftraining
     from senerf.train import RayBatchSource, build_field, evaluate, train_field
 
     scene, train_idx, test_idx, model, tcfg = _load(args)
     out = Path(args.out)
-    cfg = SelfTrainConfig(iterations=args.iterations, features=args.features, threshold=args.threshold,
-                          n_pseudo_per_input=args.n_pseudo, seed=args.seed, batch_reliable=args.batch_reliable,
-                          batch_prior=args.batch_prior)
+    cfg = SelfTrainConfig(iterations=args.iterations, threshold=args.threshold, n_pseudo_per_input=args.n_pseudo,
+                          seed=args.seed, batch_reliable=args.batch_reliable, batch_prior=args.batch_prior)
     t0 = time.perf_counter()
     metrics = run_selftraining(scene, train_idx, test_idx, model, tcfg, cfg, out / "selftrain",
                                command=sys.argv, progress=False)
@@ -165,17 +207,18 @@ def bench_e2e(args) -> dict:
 
 
 def bench_labelling(args) -> dict:
-    from senerf.selftrain import SelfTrainConfig, make_feature_extractor
+    from senerf.config import SelfTrainConfig
+    from senerf.selftrain import VGG19Features
     from senerf.selftrain import reliability as rel
-    from senerf.selftrain.controller import _sample_pseudo_poses, known_images
+    from senerf.selftrain import known_images, sample_pseudo_cameras
     from senerf.train import RayBatchSource, build_field, render_views, train_field
 
     scene, train_idx, _, model, tcfg = _load(args)
     rays = RayBatchSource.from_scene(scene, train_idx, model, tcfg.device)
     teacher = train_field(build_field(model, seed=tcfg.seed, steps=tcfg.steps), rays, tcfg, progress=False)
     field, occ = teacher.field.eval(), teacher.occupancy
-    cfg = SelfTrainConfig(features=args.features)
-    extractor = make_feature_extractor(args.features)
+    cfg = SelfTrainConfig()
+    extractor = VGG19Features()
     known_intr = [scene.intrinsics_all[i] for i in train_idx]
     known_c2w = np.asarray(scene.c2w[train_idx], dtype=np.float64)
     t = time.perf_counter()
@@ -183,7 +226,7 @@ def bench_labelling(args) -> dict:
     t_known = time.perf_counter() - t
     known = render_views(field, model, known_intr, known_c2w, occupancy=occ)
     known_z = np.where(known["acc"] >= cfg.opacity_threshold, known["z_depth"], np.inf)
-    c2w, pseudo_k = _sample_pseudo_poses(scene, train_idx, cfg, 1)
+    c2w, pseudo_k = sample_pseudo_cameras(scene, train_idx, cfg, 1)
     times = {k: 0.0 for k in ("render", "features", "similarity_all", "similarity_foreground",
                               "bilinear_reference", "bilinear")}
     lookups = 0
@@ -221,12 +264,12 @@ def bench_labelling(args) -> dict:
     ratio_sim = times["similarity_foreground"] / times["similarity_all"]
     ratio_bil = times["bilinear"] / times["bilinear_reference"]
     h, w = scene.size
-    print(f"lego {w}x{h}, {args.features}, teacher {tcfg.steps} steps; {n} pseudo views, foreground "
+    print(f"lego {w}x{h}, vgg19, teacher {tcfg.steps} steps; {n} pseudo views, foreground "
           f"{100 * np.mean(fg_share):.1f} % of their pixels; known-view features {t_known:.1f} s")
     print("per pseudo view: " + ", ".join(f"{k} {v:.2f} s" for k, v in per_view.items()))
     print(f"view_similarity foreground only / every pixel: {ratio_sim:.3f} (same foreground values)")
     print(f"bilinear_sample / bilinear_sample_reference on {rel._SAMPLE_CHUNK} lookups: {ratio_bil:.3f} (identical)")
-    return dict(mode="labelling", size=[h, w], steps=tcfg.steps, n_pseudo=n, features=args.features,
+    return dict(mode="labelling", size=[h, w], steps=tcfg.steps, n_pseudo=n, features="vgg19",
                 foreground_share=float(np.mean(fg_share)), known_features_seconds=t_known,
                 seconds_per_view=per_view, ratio_similarity_foreground_vs_all=ratio_sim,
                 ratio_bilinear_vs_reference=ratio_bil, bilinear_lookups=lookups)
@@ -234,7 +277,7 @@ def bench_labelling(args) -> dict:
 
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("mode", choices=("masks", "e2e", "labelling"))
+    p.add_argument("mode", choices=("masks", "e2e", "labelling", "masks-table"))
     p.add_argument("--out", default="/tmp/bench_selftrain")
     p.add_argument("--steps", type=int, default=600)
     p.add_argument("--preset", default="fast")
@@ -248,20 +291,28 @@ def main(argv=None) -> int:
                    help="e2e: pseudo views per input view; labelling: pseudo views timed")
     p.add_argument("--batch-reliable", type=int, default=512, help="e2e: reliable pseudo rays per step")
     p.add_argument("--batch-prior", type=int, default=128, help="e2e: prior pseudo rays per step")
-    p.add_argument("--features", default="vgg19")
     p.add_argument("--threshold", default="adaptive")
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--json", default=None, help="masks-table: the bench_masks.json to tabulate")
     args = p.parse_args(argv)
+    if args.mode == "masks-table":
+        print(mask_quality_markdown(json.loads(Path(args.json).read_text()), args.json), end="")
+        return 0
     torch.set_num_threads(max(1, os.cpu_count() or 1))
     Path(args.out).mkdir(parents=True, exist_ok=True)
     result = dict(masks=bench_masks, e2e=bench_e2e, labelling=bench_labelling)[args.mode](args)
     from datetime import datetime, timezone
 
-    from senerf.bench.machine import git_commit, machine_info
+    from senerf.bench.runner import git_commit
+    from senerf.memory import cpu_model
 
-    result.update(argv=sys.argv, commit=git_commit(), machine=machine_info("cpu"),
+    machine = dict(cpu=cpu_model(), threads=torch.get_num_threads(), torch=str(torch.__version__), device="cpu")
+    result.update(argv=sys.argv, commit=git_commit(), machine=machine,
                   timestamp=datetime.now(timezone.utc).isoformat(timespec="seconds"))
     (Path(args.out) / f"bench_{args.mode}.json").write_text(json.dumps(result, indent=1))
+    if args.mode == "masks":
+        table = mask_quality_markdown(result, str(Path(args.out) / "bench_masks.json"))
+        (Path(args.out) / "bench_masks.md").write_text(table)
     return 0
 
 

@@ -18,13 +18,11 @@ import shlex
 import sys
 from pathlib import Path
 
-from senerf.bench.execute import RunnerConfig
-from senerf.bench.executors import make_executor
 from senerf.bench.plots import plot_frontier
 from senerf.bench.report import make_report
 from senerf.bench.results import load_results
-from senerf.bench.runner import dry_run_lines, run_benchmark
-from senerf.bench.specs import PRESETS, expand_specs
+from senerf.bench.runner import RunnerConfig, dry_run_lines, make_executor, run_benchmark
+from senerf.bench.protocols import PRESETS, expand_specs
 from senerf.bench.summary import aggregate, final_iterations, format_table
 from senerf.cliargs import run_command
 
@@ -42,13 +40,12 @@ def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--scene", default=str(default_scene()), help="lego folder (default: $SENERF_DATA/...)")
-    p.add_argument("--presets", nargs="+", default=list(PRESETS), choices=PRESETS,
-                   help="(the quality preset of the early results was removed at b7eed9f)")
+    p.add_argument("--presets", nargs="+", default=list(PRESETS), choices=PRESETS)
     p.add_argument("--seeds", nargs="+", type=int, default=[0])
     p.add_argument("--iterations", type=int, default=None,
                    help="SE-NeRF self-training rounds (default: each preset's own count)")
     p.add_argument("--methods", nargs="+", default=METHODS,
-                   help=f"harness methods (default: {' '.join(METHODS)}; e.g. senerf-oracle senerf-no-empty)")
+                   help=f"harness methods (default: {' '.join(METHODS)}; e.g. senerf-no-prior senerf-no-empty)")
     p.add_argument("--out", default=str(REPO / "benchmarks" / "out" / "frontier"))
     p.add_argument("--workers", type=int, default=1)
     p.add_argument("--ray-address", default=None)
@@ -60,13 +57,8 @@ def main(argv: list[str] | None = None) -> int:
     out = Path(args.out)
     results = out / "results.jsonl"
     scene = Path(args.scene)
-    from senerf.train.config import PRESETS as TRAIN_PRESETS
-
-    specs = []
-    for preset in args.presets:
-        k = args.iterations if args.iterations is not None else int(TRAIN_PRESETS[preset]["iterations"])
-        specs += expand_specs([str(scene.resolve())], [PROTOCOL], args.methods, [preset], args.seeds,
-                              iterations=k, check_scenes=scene.is_dir())
+    specs = expand_specs([str(scene.resolve())], [PROTOCOL], args.methods, args.presets, args.seeds,
+                         iterations=args.iterations, check_scenes=scene.is_dir())
     cfg_kw = {"fit_command": tuple(shlex.split(args.fit_command))} if args.fit_command else {}
     threads = 1 if args.ray_address else max(1, len(os.sched_getaffinity(0)) // args.workers)
     cfg = RunnerConfig(runs_dir=str((out / "runs").resolve()), timeout_s=args.timeout, threads=threads, **cfg_kw)
@@ -82,7 +74,7 @@ def main(argv: list[str] | None = None) -> int:
         outcome = run_benchmark(specs, executor, results, cfg, command)
     finally:
         executor.shutdown()
-    records, _ = load_results(results)
+    records = load_results(results)[0]
     aggs = [a for a in aggregate(records) if a.protocol == PROTOCOL and a.scene == scene.name]
     if not aggs:
         print("frontier: no finished fits to tabulate", file=sys.stderr)

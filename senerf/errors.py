@@ -1,12 +1,7 @@
 """The one exception type for bad user input, and what counts as a number in it (no torch or NumPy import here).
 
-Every loader and command raises :class:`InputError` for problems in what a user
-gave us: a missing file, a malformed field, a non-rigid pose, an out-of-range
-view index.  Its message is one line that names the file and the field, so the
-command line can print it and exit with status 2 without a traceback.
-
-:func:`is_number` is the one test of a real-valued setting every config applies (``TrainConfig``,
-``ModelConfig``, ``DistillConfig``, ``SelfTrainConfig``): a finite real, Python or NumPy, and not a bool.
+Every loader and command raises :class:`InputError` for problems in what a user gave us; the command line prints
+its one line and exits with status 2 without a traceback.
 """
 
 from __future__ import annotations

@@ -1,15 +1,12 @@
 """One figure per ``senerf-fit`` run, ``summary.png``: what the run bought, where, and what it looks like.
 
-* top left: mean test PSNR per iteration (0 = the teacher), SSIM on the right axis, the reliable share of
-  each iteration's pseudo pixels beside its point;
-* top right: per-test-view PSNR against the angle to the nearest training camera, for iteration 0 and the
-  last iteration (faint points, binned means as lines): where self-training helped;
+* top: mean test PSNR and SSIM per iteration (0 = the teacher), with each iteration's reliable share of pseudo
+  pixels under its tick; per-test-view PSNR against the angle to the nearest training camera, for iteration 0
+  and the last (faint points, binned means as lines): where self-training helped;
 * below: three test views (nearest, median and farthest from the training cameras), ground truth beside
   the renders of iteration 0 and of the last iteration, each titled with its PSNR.
 
-It reads only ``metrics.json``'s rows (DESIGN.md contract) and the test renders the run wrote
-(``iter_K/test/rgb_XXX.png``); the ground truth and the angles come from the caller (the scene).  Written
-atomically with matplotlib's Agg canvas (no pyplot state, no global backend switch).
+Drawn with matplotlib's Agg canvas (no pyplot state, no global backend switch).
 """
 
 from __future__ import annotations
@@ -22,7 +19,7 @@ import numpy as np
 
 from .atomic import atomic_write_bytes
 
-__all__ = ["plot_run_summary", "pick_views", "binned_means"]
+__all__ = ["plot_run_summary", "write_summary", "pick_views", "binned_means"]
 
 
 def pick_views(angles_deg: np.ndarray | None, psnr: np.ndarray, k: int = 3) -> list[int]:
@@ -61,10 +58,9 @@ def _shrink(image: np.ndarray, max_side: int = 400) -> np.ndarray:
     return image[::stride, ::stride]
 
 
-def _read_render(run_dir: Path, iteration: int, position: int) -> np.ndarray | None:
+def _read_render(path: Path) -> np.ndarray | None:
     import imageio.v2 as imageio
 
-    path = run_dir / f"iter_{iteration}" / "test" / f"rgb_{position:03d}.png"
     try:
         return np.asarray(imageio.imread(path))[..., :3]
     except (OSError, ValueError):
@@ -72,19 +68,15 @@ def _read_render(run_dir: Path, iteration: int, position: int) -> np.ndarray | N
 
 
 def _checked_rows(metrics: dict) -> list[dict]:
-    """``metrics["iterations"]`` sorted by iteration, each with ``psnr``, ``ssim`` and ``per_view["psnr"]``."""
+    """``metrics["iterations"]`` (in order, as :func:`senerf.runfolder.read_metrics` checks), each with its
+    ``iteration``, ``psnr``, ``ssim`` and ``per_view["psnr"]``, all of one length."""
     rows = metrics.get("iterations") or []
     if not rows:
         raise ValueError("metrics has no iteration rows")
-    if not all(isinstance(r, dict) and isinstance(r.get("iteration"), int) for r in rows):
-        raise ValueError("an iteration row is not an object with an integer 'iteration'")
-    rows = sorted(rows, key=lambda r: r["iteration"])
-    for r in rows:
-        if not ({"psnr", "ssim"} <= r.keys() and isinstance(r.get("per_view"), dict) and "psnr" in r["per_view"]):
-            raise ValueError(f"iteration {r['iteration']}'s row lacks psnr, ssim or per_view.psnr")
-    if len(rows[0]["per_view"]["psnr"]) != len(rows[-1]["per_view"]["psnr"]):
-        raise ValueError(f"per-view PSNR lengths differ: {len(rows[0]['per_view']['psnr'])} and "
-                         f"{len(rows[-1]['per_view']['psnr'])}")
+    n = len(rows[0].get("per_view", {}).get("psnr", []))
+    for k, r in enumerate(rows):
+        if not ({"iteration", "psnr", "ssim"} <= r.keys() and len(r.get("per_view", {}).get("psnr", [])) == n > 0):
+            raise ValueError(f"row {k} lacks its iteration, psnr, ssim or per_view.psnr of every test view")
     return rows
 
 
@@ -111,49 +103,37 @@ def _draw_curves(ax_psnr, ax_ssim, rows: list[dict]) -> None:
 
 
 def _draw_per_view(ax, compare: list[dict], angles_deg: np.ndarray | None, bin_deg: float) -> None:
-    """Per-view PSNR against the angle to the nearest input (first and last iteration), or without angles a
-    histogram of the per-view change."""
+    """Per-view PSNR against the angle to the nearest input (first and last iteration; binned means as lines), or
+    against the view's position when there are no angles."""
     ax.set_title("per test view", fontsize=9)
-    if angles_deg is not None and angles_deg.size:
-        for row, colour in zip(compare, ("C0", "C3")):
-            p = np.asarray(row["per_view"]["psnr"], np.float64)
-            ax.scatter(angles_deg, p, s=6, alpha=0.25, color=colour)
+    for row, colour in zip(compare, ("C0", "C3")):
+        p = np.asarray(row["per_view"]["psnr"], np.float64)
+        x = np.arange(p.size) if angles_deg is None else angles_deg
+        ax.scatter(x, p, s=6, alpha=0.25 if angles_deg is not None else 1.0, color=colour,
+                   label=None if angles_deg is not None else f"iteration {row['iteration']}")
+        if angles_deg is not None:
             ax.plot(*binned_means(angles_deg, p, bin_deg), "-o", ms=3, color=colour,
                     label=f"iteration {row['iteration']}")
-        ax.set_xlabel("angle to the nearest training view (degrees)")
-        ax.set_ylabel("test-view PSNR (dB)")
-        ax.legend(fontsize=8)
-        ax.grid(alpha=0.3)
-        return
-    change = (np.asarray(compare[-1]["per_view"]["psnr"], np.float64)
-              - np.asarray(compare[0]["per_view"]["psnr"], np.float64))
-    change = change[np.isfinite(change)]   # a perfect render's PSNR is inf
-    lo, hi = (float(change.min()), float(change.max())) if change.size else (0.0, 0.0)
-    if hi - lo < 1e-3:   # (nearly) one value: numpy cannot split a zero-width range into 20 bins
-        lo, hi = lo - 0.5, hi + 0.5
-    ax.hist(change, bins=20, range=(lo, hi), color="C0")
-    ax.set_xlabel(f"PSNR change per test view, iteration {compare[-1]['iteration']} - 0 (dB)")
-    ax.set_ylabel("test views")
+    ax.set_xlabel("test view" if angles_deg is None else "angle to the nearest training view (degrees)")
+    ax.set_ylabel("test-view PSNR (dB)")
+    ax.legend(fontsize=8)
+    ax.grid(alpha=0.3)
 
 
 def _draw_views(subfig, metrics: dict, views: list[int], compare: list[dict], run_dir: Path,
                 angles_deg: np.ndarray | None, ground_truth: Callable[[int], np.ndarray] | None) -> None:
     """One row per test view position in ``views``: ground truth (when given), then each compared iteration's
-    render, titled with the photo's file (``metrics['test_images']``; else the view's index), its angle and each
-    render's PSNR."""
+    render (blank when missing), titled with the photo's file (``metrics['test_images']``, its last 29 characters
+    past 32; else the view's position), its angle and each render's PSNR."""
     n_cols = (ground_truth is not None) + len(compare)
     axes = np.asarray(subfig.subplots(len(views), n_cols, squeeze=False))
-    test_views, test_images = metrics.get("test_views"), metrics.get("test_images")
-    n_test = len(compare[0]["per_view"]["psnr"])
+    test_images = metrics.get("test_images")
     for i, pos in enumerate(views):
         images = ([np.clip(np.asarray(ground_truth(pos), np.float32), 0.0, 1.0)] if ground_truth else [])
-        images += [_read_render(run_dir, r["iteration"], pos) for r in compare]
-        if isinstance(test_images, list) and len(test_images) == n_test:   # the photo's file, as the user has it
+        images += [_read_render(run_dir / f"iter_{r['iteration']}" / "test" / f"rgb_{pos:03d}.png") for r in compare]
+        name = f"test view {pos}"
+        if isinstance(test_images, list) and len(test_images) == len(compare[0]["per_view"]["psnr"]):
             name = str(test_images[pos]) if len(str(test_images[pos])) <= 32 else "..." + str(test_images[pos])[-29:]
-        elif isinstance(test_views, list) and len(test_views) == n_test:
-            name = f"image {test_views[pos]}"
-        else:
-            name = f"test view {pos}"
         titles = ([f"ground truth ({name})"] if ground_truth else [])
         titles += [f"iteration {r['iteration']}: {r['per_view']['psnr'][pos]:.2f} dB" for r in compare]
         if angles_deg is not None:
@@ -171,19 +151,19 @@ def plot_run_summary(metrics: dict, run_dir: str | Path, path: str | Path,
     """Draw the run's summary figure to ``path`` (PNG, atomic).
 
     Args:
-        metrics: the run's ``metrics.json`` dict (``scene``, ``test_views``, ``iterations`` rows with
+        metrics: the run's ``metrics.json`` dict (``scene``, ``test_images``, ``iterations`` rows with
             ``iteration``, ``psnr``, ``ssim``, ``reliable_fraction``, ``per_view["psnr"]``).
         run_dir: the run's folder (its ``iter_K/test/rgb_XXX.png`` renders; missing ones are left blank).
         path: the PNG to write.
         angles_deg: (n_test,) degrees from each test view to its nearest training camera
-            (:func:`senerf.geometry.nearest_view_angles`), or None (no angle panel; views picked by PSNR).
+            (:func:`senerf.geometry.nearest_view_angles`), or None (views by position, picked by PSNR).
         ground_truth: ``position -> (H, W, 3)`` image in [0, 1] of test view ``position``, or None.
         bin_deg: angle bin width of the mean lines.
     Returns:
         ``Path(path)``.
     Raises:
-        ValueError: no iteration rows, a row without an integer ``iteration``, ``psnr``, ``ssim`` or
-            ``per_view["psnr"]``, or per-view / angle lengths that disagree.
+        ValueError: no iteration rows, a row without ``psnr``, ``ssim`` or ``per_view["psnr"]``, or per-view /
+            angle lengths that disagree.
     """
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
@@ -212,3 +192,36 @@ def plot_run_summary(metrics: dict, run_dir: str | Path, path: str | Path,
     fig.savefig(buf, dpi=100, format="png")
     atomic_write_bytes(path, buf.getvalue())
     return Path(path)
+
+
+def write_summary(metrics: dict, scene, train_idx, test_idx, model, out: str | Path,
+                  echo: Callable[[str], None] = print) -> Path | None:
+    """``out/summary.png`` of a fit (:func:`plot_run_summary`), with the angles from each test view to its
+    nearest training camera (about the point the cameras look at; between optical axes in a forward-facing
+    scene, or where the axes meet nowhere).  The metrics are already on disk, so a figure that cannot be drawn
+    is a one-line warning, never a failed run.  Returns the figure's path, or None."""
+    import warnings
+
+    from senerf.geometry import closest_point_to_axes, nearest_view_angles
+    from senerf.train import eval_images
+
+    train_c2w, test_c2w = scene.c2w[np.asarray(train_idx)], scene.c2w[np.asarray(test_idx)]
+    angles = None
+    for center in ("look-at", None):
+        try:
+            point = closest_point_to_axes(scene.c2w) if center and scene.kind != "forward_facing" else None
+            angles = nearest_view_angles(train_c2w, test_c2w, point)
+            break
+        except ValueError:   # all axes parallel, or a camera at that point
+            continue
+
+    def ground_truth(position: int) -> np.ndarray:
+        return eval_images(scene, [test_idx[position]], model)[0]
+
+    try:
+        path = plot_run_summary(metrics, out, Path(out) / "summary.png", angles_deg=angles, ground_truth=ground_truth)
+    except (OSError, ValueError, MemoryError) as exc:
+        warnings.warn(f"no summary figure ({str(exc) or type(exc).__name__})")
+        return None
+    echo(f"fit: summary figure in {path}")
+    return path

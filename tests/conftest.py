@@ -76,10 +76,10 @@ def render_spy(monkeypatch) -> CallSpy:
 
 @pytest.fixture
 def similarity_spy(monkeypatch) -> CallSpy:
-    """A :class:`CallSpy` installed in place of the self-training controller's ``view_similarity`` (one call per
-    pseudo view :func:`senerf.selftrain.estimate_reliability` labels) for the test."""
-    import senerf.selftrain.controller as controller_mod
+    """A :class:`CallSpy` installed in place of the labelling's ``view_similarity`` (one call per pseudo view
+    :func:`senerf.selftrain.estimate_reliability` labels) for the test."""
+    import senerf.selftrain.labels as labels_mod
 
-    spy = CallSpy(controller_mod.view_similarity)
-    monkeypatch.setattr(controller_mod, "view_similarity", spy)
+    spy = CallSpy(labels_mod.view_similarity)
+    monkeypatch.setattr(labels_mod, "view_similarity", spy)
     return spy

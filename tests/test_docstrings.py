@@ -41,7 +41,7 @@ HERE = [name for name in WITH_EXAMPLES if name not in NEEDS_DATA]
 
 
 def test_discovery_finds_the_known_modules():
-    assert {"senerf.geometry.warp", "senerf.train.config", "senerf.bench.ladder"} <= set(HERE)
+    assert {"senerf.geometry.warp", "senerf.config", "senerf.runfolder"} <= set(HERE)
     assert "senerf.errors" in HERE and set(NEEDS_DATA) <= set(WITH_EXAMPLES)
     assert all(callable(globals().get(test)) for test in NEEDS_DATA.values())
 

@@ -2,31 +2,22 @@
 
 Detection order: ``transforms_train.json`` -> Blender / NeRF Synthetic; ``transforms.json`` ->
 instant-ngp / nerfstudio; ``poses_bounds.npy`` -> LLFF; a COLMAP model (``sparse/0/cameras.bin`` or
-``.txt``, see :mod:`senerf.data.colmap`) -> COLMAP.  A folder matching none is an ``InputError`` listing what
-was looked for.  Passing one of the first three files instead of its folder is accepted.
+``.txt``, see :mod:`senerf.data.colmap`) -> COLMAP (a marker file given instead of its folder: :func:`scene_root`).
 
-Downscaling: ``downscale`` divides both image sides (``>= 1``, not necessarily an integer).  Sides that do
-not divide evenly are rounded half up (``floor(side / downscale + 0.5)``) and intrinsics are scaled per
-axis by the actual ratio (``Intrinsics.resized``), which is exact in the pixel-centre-at-``i + 0.5``
-convention.  Images are area-interpolated (``cv2.INTER_AREA``) on premultiplied colour.  For LLFF the
-factor is relative to the full resolution recorded in ``poses_bounds.npy`` (``downscale=8`` reads
-``images_8/``), see :mod:`senerf.data.llff`.
-
-Convention:
-    Poses come out camera-to-world in the OpenCV camera convention; the per-format conversion happens in
-    the format's loader and nowhere else.
+Downscaling: ``downscale`` divides both image sides (``>= 1``, not necessarily an integer; LLFF and COLMAP read
+an ``images_N/`` folder when one fits, see :mod:`senerf.data.llff`).  Sides are rounded half up
+(``floor(side / downscale + 0.5)``), images area-interpolated (``cv2.INTER_AREA``) on premultiplied colour, and
+intrinsics scaled per axis by the actual ratio (``Intrinsics.resized``), exact with pixel centres at ``i + 0.5``.
 """
 
 from __future__ import annotations
 
 import dataclasses
-import math
 import warnings
 from collections import Counter
 from pathlib import Path
 
-
-from ..errors import InputError
+from ..errors import InputError, is_number
 from .blender import load_blender, load_ngp
 from .colmap import colmap_model_folder, load_colmap
 from .llff import load_llff
@@ -41,8 +32,7 @@ _MARKER_NAMES = frozenset({m for _, m in FORMAT_FILES} | {"transforms_val.json",
 
 
 def scene_root(path) -> Path:
-    """The scene folder of ``path``: the path itself, or the folder of a marker file given instead
-    (``transforms_train.json``, ``transforms.json``, ``poses_bounds.npy``, ...).  Not checked further."""
+    """The scene folder of ``path``: the path itself, or the folder of a marker file given instead (unchecked)."""
     path = Path(path)
     return path.parent if path.is_file() and path.name in _MARKER_NAMES else path
 
@@ -51,11 +41,9 @@ def detect_format(root) -> str:
     """``'blender'``, ``'ngp'``, ``'llff'`` or ``'colmap'`` for a scene folder (or its marker file, see
     :func:`scene_root`); ``InputError`` when it matches none."""
     root = scene_root(root)
-    if root.is_file():
-        raise InputError(f"is a file; expected a scene folder (or one of its {', '.join(sorted(_MARKER_NAMES))})",
-                         file=root)
     if not root.is_dir():
-        raise InputError("scene folder not found", file=root)
+        raise InputError(f"is a file; expected a scene folder (or one of its {', '.join(sorted(_MARKER_NAMES))})"
+                         if root.is_file() else "scene folder not found", file=root)
     for fmt, marker in FORMAT_FILES:
         if (root / marker).is_file():
             return fmt
@@ -65,24 +53,11 @@ def detect_format(root) -> str:
     raise InputError(f"not a scene folder: none of {looked} found", file=root)
 
 
-def _check_downscale(downscale) -> float:
-    if isinstance(downscale, bool):
-        raise InputError(f"expected a number >= 1, got {downscale!r}", field="downscale")
-    try:
-        d = float(downscale)
-    except (TypeError, ValueError):
-        raise InputError(f"expected a number >= 1, got {downscale!r}", field="downscale") from None
-    if not math.isfinite(d) or d < 1.0:
-        raise InputError(f"expected a number >= 1 (no upsampling), got {downscale!r}", field="downscale")
-    return d
-
-
 def load_scene(path, downscale: float = 1, background=None, kind: str | None = None) -> Scene:
     """Load a scene folder of any supported format.
 
     Args:
-        path: the scene folder (or its ``transforms_train.json`` / ``transforms.json`` /
-            ``poses_bounds.npy``).
+        path: the scene folder, or a marker file in it (:func:`scene_root`).
         downscale: divide image sides by this, ``>= 1`` (see the module docstring; LLFF: relative to the
             full resolution).
         background: ``None`` keeps straight colour; a grey value or ``(r, g, b)`` in ``[0, 1]`` returns
@@ -101,28 +76,25 @@ def load_scene(path, downscale: float = 1, background=None, kind: str | None = N
         >>> scene.rgb.shape, round(scene.intrinsics.fx, 3)                                     # doctest: +SKIP
         ((400, 100, 100, 3), 138.889)
     """
-    d = _check_downscale(downscale)
+    if not is_number(downscale) or downscale < 1:
+        raise InputError(f"expected a number >= 1 (no upsampling), got {downscale!r}", field="downscale")
     bg = None if background is None else as_background(background)
     root = scene_root(path)
     fmt = detect_format(root)
     if kind is not None and fmt != "colmap":
         raise InputError(f"only a COLMAP scene's kind can be chosen; this is a {fmt} scene, kind "
                          f"{'forward_facing' if fmt == 'llff' else 'object'}", field="kind")
-    if fmt == "colmap":
-        scene = load_colmap(root, downscale=d, kind=kind)
-    else:
-        scene = {"blender": load_blender, "ngp": load_ngp, "llff": load_llff}[fmt](root, downscale=d)
+    loaders = {"blender": load_blender, "ngp": load_ngp, "llff": load_llff, "colmap": load_colmap}
+    scene = loaders[fmt](root, downscale=float(downscale), **({"kind": kind} if fmt == "colmap" else {}))
     _warn_odd_views(scene)
     if bg is None:
         return scene
-    rgb = scene.composite(bg)
-    return dataclasses.replace(scene, rgb=rgb, background=tuple(float(c) for c in bg))
+    return dataclasses.replace(scene, rgb=scene.composite(bg), background=tuple(float(c) for c in bg))
 
 
 def _warn_odd_views(scene: Scene) -> None:
     """Warn, once each, about what loads but is most likely a mistake: a principal point outside its image
-    (``cx`` given at another resolution, a typo) and one photo listed twice in a split (a duplicated frame,
-    which counts as two views)."""
+    and one photo listed twice in a split."""
     for k, path in zip(scene.intrinsics_all, scene.image_paths):
         if not (0.0 <= k.cx <= k.width and 0.0 <= k.cy <= k.height):
             warnings.warn(f"{path}: cx, cy: the principal point ({k.cx:g}, {k.cy:g}) lies outside the "

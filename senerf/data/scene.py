@@ -2,10 +2,8 @@
 
 Convention:
     ``c2w`` is camera-to-world in the OpenCV camera convention (x right, y down, z forward), float64.
-    Loaders convert at their edge; nothing downstream converts again.  ``rgb`` is straight (not
-    premultiplied) colour unless ``background`` is set, in which case it was composited onto that colour at
-    load time (``alpha`` is still kept).  Pixel ``(i, j)`` has its centre at ``(i + 0.5, j + 0.5)`` (see
-    :class:`senerf.geometry.Intrinsics`).
+    Loaders convert at their edge; nothing downstream converts again.  Pixel ``(i, j)`` has its centre at
+    ``(i + 0.5, j + 0.5)`` (see :class:`senerf.geometry.Intrinsics`).
 """
 
 from __future__ import annotations
@@ -17,11 +15,10 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import InputError
+from ..errors import InputError, is_number
 from ..geometry import Intrinsics
 
-__all__ = ["Scene", "SPLIT_NAMES", "as_background", "scene_file_digests", "run_file_digests", "changed_files",
-           "view_names"]
+__all__ = ["Scene", "SPLIT_NAMES", "as_background", "scene_file_digests", "changed_files", "view_names"]
 
 #: The split names every :class:`Scene` carries (possibly empty).
 SPLIT_NAMES = ("train", "val", "test")
@@ -33,20 +30,16 @@ def as_background(background, field: str = "background") -> np.ndarray:
     Raises:
         InputError: not 1 or 3 finite numbers in ``[0, 1]`` (``field`` names it).
     """
-    try:
-        bg = np.asarray(background, dtype=np.float64).reshape(-1)
-    except (TypeError, ValueError):
-        raise InputError(f"expected 1 or 3 numbers in [0, 1], got {background!r}", field=field) from None
-    if bg.size == 1:
-        bg = np.repeat(bg, 3)
-    if bg.size != 3 or not np.all(np.isfinite(bg)) or bg.min() < 0.0 or bg.max() > 1.0:
+    bg = np.asarray(background, dtype=object).reshape(-1)
+    bg = np.repeat(bg, 3) if bg.size == 1 else bg
+    if bg.size != 3 or not all(is_number(c) and 0.0 <= c <= 1.0 for c in bg):
         raise InputError(f"expected 1 or 3 numbers in [0, 1], got {background!r}", field=field)
     return bg.astype(np.float32)
 
 
 @dataclass(frozen=True, eq=False)
 class Scene:
-    """One loaded scene; all images share one size.
+    """One loaded scene, as its loader built it (not checked again); all images share one size.
 
     Attributes:
         name: scene name (the folder name, e.g. ``"lego"``).
@@ -56,16 +49,12 @@ class Scene:
         intrinsics: the shared-size intrinsics (those of image 0).
         intrinsics_all: per-image intrinsics, length ``n`` (same width/height for all).
         c2w: ``(n, 4, 4)`` float64 camera-to-world, OpenCV convention.
-        splits: ``'train'``, ``'val'``, ``'test'`` -> int64 index arrays into the arrays above.
+        splits: ``'train'``, ``'val'``, ``'test'`` -> int64 index arrays into the arrays above (empty if not given).
         kind: ``'object'`` (360 degree, e.g. Blender) or ``'forward_facing'`` (LLFF).
         near, far: scene depth bounds in world units where the format gives them (LLFF), else ``None``.
         image_paths: the image file of each view, length ``n``.
-        source_files: the other files the loader read (poses, cameras, splits: ``transforms_*.json``,
-            ``poses_bounds.npy``, COLMAP's model files), each once; :func:`scene_file_digests` hashes them.
+        source_files: the pose, camera and split files read, each once (:func:`scene_file_digests` hashes them).
         background: ``(r, g, b)`` that ``rgb`` was composited onto at load time, or ``None`` (straight).
-
-    Raises:
-        ValueError: inconsistent shapes or lengths (a programming error, not user input).
     """
 
     name: str
@@ -84,28 +73,7 @@ class Scene:
     source_files: tuple = ()
 
     def __post_init__(self) -> None:
-        rgb, c2w = self.rgb, self.c2w
-        if rgb.ndim != 4 or rgb.shape[-1] != 3 or rgb.dtype != np.float32:
-            raise ValueError(f"Scene.rgb: expected (n, H, W, 3) float32, got {rgb.shape} {rgb.dtype}")
-        n, h, w = rgb.shape[:3]
-        if self.alpha is not None and (self.alpha.shape != (n, h, w) or self.alpha.dtype != np.float32):
-            raise ValueError(f"Scene.alpha: expected ({n}, {h}, {w}) float32, got {self.alpha.shape}")
-        if c2w.shape != (n, 4, 4) or c2w.dtype != np.float64:
-            raise ValueError(f"Scene.c2w: expected ({n}, 4, 4) float64, got {c2w.shape} {c2w.dtype}")
-        if len(self.intrinsics_all) != n or any(k.size != (h, w) for k in self.intrinsics_all):
-            raise ValueError(f"Scene.intrinsics_all: expected {n} Intrinsics of size {(h, w)}")
-        if self.intrinsics.size != (h, w):
-            raise ValueError(f"Scene.intrinsics: size {self.intrinsics.size} differs from images {(h, w)}")
-        if len(self.image_paths) != n:
-            raise ValueError(f"Scene.image_paths: expected {n} paths, got {len(self.image_paths)}")
-        if self.kind not in ("object", "forward_facing"):
-            raise ValueError(f"Scene.kind: expected 'object' or 'forward_facing', got {self.kind!r}")
-        splits = {}
-        for key in SPLIT_NAMES:
-            idx = np.asarray(self.splits.get(key, ()), dtype=np.int64).reshape(-1)
-            if idx.size and (idx.min() < 0 or idx.max() >= n):
-                raise ValueError(f"Scene.splits[{key!r}]: index out of range [0, {n})")
-            splits[key] = idx
+        splits = {key: np.asarray(self.splits.get(key, ()), dtype=np.int64).reshape(-1) for key in SPLIT_NAMES}
         object.__setattr__(self, "splits", splits)
         object.__setattr__(self, "intrinsics_all", tuple(self.intrinsics_all))
         object.__setattr__(self, "image_paths", tuple(Path(p) for p in self.image_paths))
@@ -129,45 +97,34 @@ class Scene:
             idx: optional int view indices ``(m,)``; only those views are composited (saves memory).
 
         Returns:
-            ``(n, H, W, 3)`` (or ``(m, H, W, 3)``) float32, a new array.  Without alpha this is a copy of
-            ``rgb``.
+            ``(n, H, W, 3)`` (or ``(m, H, W, 3)``) float32, a new array (a copy of ``rgb`` without alpha).
 
         Raises:
             InputError: a malformed background.
-            ValueError: ``rgb`` was already composited at load time onto a *different* background (the
-                straight colour is gone; reload with ``background=None``), or ``idx`` out of range.
+            ValueError: ``rgb`` was already composited at load time onto a *different* background.
+            IndexError: ``idx`` out of range.
         """
         bg = as_background(background)
-        if idx is None:
-            rgb, alpha = self.rgb, self.alpha
-        else:
-            idx = np.asarray(idx, dtype=np.int64).reshape(-1)
-            if idx.size and (idx.min() < -self.n_images or idx.max() >= self.n_images):
-                raise ValueError(f"Scene.composite: idx out of range [0, {self.n_images})")
-            rgb, alpha = self.rgb[idx], None if self.alpha is None else self.alpha[idx]
-        if self.background is not None:
-            if not np.allclose(bg, np.asarray(self.background, np.float32), atol=1e-6):
-                raise ValueError(
-                    f"Scene.composite: rgb was composited onto {tuple(self.background)} at load time; "
-                    "reload with background=None to composite onto another colour"
-                )
-            return rgb.copy()
-        if alpha is None:
-            return rgb.copy()
-        a = alpha[..., None]
+        if self.background is not None and not np.allclose(bg, np.asarray(self.background, np.float32), atol=1e-6):
+            raise ValueError(f"Scene.composite: rgb was composited onto {tuple(self.background)} at load time; "
+                             "reload with background=None to composite onto another colour")
+        idx = slice(None) if idx is None else np.asarray(idx, dtype=np.int64).reshape(-1)
+        rgb = self.rgb[idx]   # a copy when idx is an index array
+        if self.background is not None or self.alpha is None:
+            return rgb.copy() if isinstance(idx, slice) else rgb
+        a = self.alpha[idx][..., None]
         return (rgb * a + bg * (1.0 - a)).astype(np.float32)
 
 
 def _name_in(root, path) -> str:
-    """``path`` relative to ``root`` (``/``-separated), or its absolute path when it lies outside; lexically,
-    so a symlinked photo keeps the name it has in the scene folder."""
+    """``path`` named as :func:`view_names` names it, lexically (a symlinked photo keeps its name in the folder)."""
     root, full = Path(os.path.abspath(root)), Path(os.path.abspath(path))
     return full.relative_to(root).as_posix() if full.is_relative_to(root) else str(full)
 
 
 def view_names(scene: Scene, views) -> list[str]:
-    """The image file of each of ``views`` (int indices ``(m,)``), named relative to the scene folder: what a
-    view index stands for (``metrics.json`` records both).
+    """The image file of each of ``views`` (int indices ``(m,)``), named relative to the scene folder
+    (``/``-separated; a file outside it by its absolute path): what a view index stands for.
 
     Example:
         >>> view_names(load_scene("lego", downscale=4), [0, 1, 51])   # doctest: +SKIP
@@ -176,67 +133,32 @@ def view_names(scene: Scene, views) -> list[str]:
     return [_name_in(scene.root, scene.image_paths[int(i)]) for i in np.asarray(views, dtype=np.int64).reshape(-1)]
 
 
-def _sha256_prefix(path: str) -> str:
-    """The first 16 hex digits of the SHA-256 of the file's bytes, read in 1 MiB chunks (Python 3.10 has no
-    ``hashlib.file_digest``)."""
-    digest = hashlib.sha256()
-    with open(path, "rb") as f:
-        for chunk in iter(lambda: f.read(1 << 20), b""):
-            digest.update(chunk)
-    return digest.hexdigest()[:16]
-
-
 def scene_file_digests(scene: Scene, views=None) -> dict:
     """What the scene's files held when read: ``{name: sha256 hex digest, first 16 characters}``.
 
-    The files are ``scene.source_files`` (poses, cameras) and the image files of ``views``; a name is the
-    path relative to ``scene.root`` (``/``-separated), or the absolute path of a file outside it.  Two
-    loads of unchanged files give equal dicts on any machine (bytes, not decoded pixels, are hashed), so a
-    run can tell whether its scene changed between a fit and a resume.
+    The files are ``scene.source_files`` (poses, cameras) and the image files of ``views``, named as
+    :func:`view_names` names them.  Two loads of unchanged files give equal dicts on any machine (bytes, not
+    decoded pixels, are hashed), so a run can tell whether its scene changed between a fit and a resume.
 
     Args:
-        scene: a loaded :class:`Scene`.
         views: int view indices ``(m,)`` whose images count; ``None`` for all.
 
     Raises:
         InputError: a file can no longer be read (named).
-
-    Example:
-        >>> digests = scene_file_digests(load_scene("lego", downscale=4), views=[0, 1])  # doctest: +SKIP
-        >>> sorted(digests)[:2]                                                           # doctest: +SKIP
-        ['train/r_0.png', 'train/r_1.png']
     """
     idx = range(scene.n_images) if views is None else np.asarray(views, dtype=np.int64).reshape(-1)
     paths = list(scene.source_files) + [scene.image_paths[int(i)] for i in idx]
     out = {}
     for path in dict.fromkeys(paths):
+        digest = hashlib.sha256()   # in 1 MiB chunks (Python 3.10 has no hashlib.file_digest)
         try:
-            out[_name_in(scene.root, path)] = _sha256_prefix(os.path.abspath(path))
+            with open(os.path.abspath(path), "rb") as f:
+                for chunk in iter(lambda: f.read(1 << 20), b""):
+                    digest.update(chunk)
         except OSError as exc:
             raise InputError(f"cannot be read any more ({exc.strerror or exc})", file=path) from None
+        out[_name_in(scene.root, path)] = digest.hexdigest()[:16]
     return dict(sorted(out.items()))
-
-
-def run_file_digests(scene: Scene, train_idx, test_idx, oracle: bool = False, missing_ok: bool = False) -> dict | None:
-    """:func:`scene_file_digests` of the files a run reads: the poses and cameras, the training and test views'
-    photos, and with ``oracle`` (held-out views label the pseudo views) every view's.  The same record for
-    senerf-fit's ``run.json`` and ``run_selftraining``'s ``scene_files.json``.
-
-    Args:
-        scene: a loaded :class:`Scene`; train_idx, test_idx: int view indices ``(m,)``, ``(t,)``.
-        oracle: the run's reliability is the oracle (decided by the setting, not by whether a call self-trains,
-            so ``--iterations 0`` then 1 is one run).
-        missing_ok: return None when the files are not all on disk (a scene built in memory: nothing to compare)
-            instead of raising.
-
-    Raises:
-        InputError: a file can no longer be read (named), unless ``missing_ok``.
-    """
-    views = np.arange(scene.n_images) if oracle else np.union1d(np.asarray(train_idx), np.asarray(test_idx))
-    if missing_ok and not all(Path(f).is_file() for f in (*scene.source_files,
-                                                          *(scene.image_paths[int(i)] for i in views))):
-        return None
-    return scene_file_digests(scene, views)
 
 
 def changed_files(then: dict, now: dict) -> list[str]:

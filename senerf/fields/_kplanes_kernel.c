@@ -32,8 +32,7 @@ typedef struct {
     REAL w[MAXS][3][4];
 } Corners;
 
-static inline void corners(const REAL *un, int64_t S, const int64_t *res, const int64_t *offs, Corners *c,
-                           int prefetch) {
+static inline void corners(const REAL *un, int64_t S, const int64_t *res, const int64_t *offs, Corners *c) {
     for (int64_t s = 0; s < S; ++s) {
         int64_t r = res[s];
         REAL lim = (REAL)(r - 1);
@@ -53,7 +52,6 @@ static inline void corners(const REAL *un, int64_t S, const int64_t *res, const 
             c->w[s][p][1] = fa * (1 - fb);
             c->w[s][p][2] = (1 - fa) * fb;
             c->w[s][p][3] = fa * fb;
-            (void)prefetch;
         }
     }
 }
@@ -77,19 +75,26 @@ static inline void blend(const REAL *restrict table, int64_t row, int64_t r, con
 }
 
 int kp_nf(void) { return NF; }
-int kp_maxs(void) { return MAXS; }
+
+/* Point n's corners from the ring, once those of point n + PD are computed into it and their rows of table (and of
+   gtable, when given) prefetched. */
+static inline const Corners *ring_step(Corners *ring, const REAL *u, int64_t n, int64_t n1, int64_t S,
+                                       const int64_t *res, const int64_t *offs, const REAL *table, const REAL *gtable) {
+    if (n + PD < n1) {
+        Corners *nx = &ring[(n + PD) % RING];
+        corners(u + 3 * (n + PD), S, res, offs, nx);
+        prefetch_rows(table, nx, S, res, 0);
+        if (gtable) prefetch_rows(gtable, nx, S, res, 1);
+    }
+    return &ring[n % RING];
+}
 
 void kp_forward(const REAL *u, const REAL *table, int64_t n0, int64_t n1, int64_t S, const int64_t *res,
                 const int64_t *offs, REAL *out) {
     Corners ring[RING];
-    for (int64_t k = n0; k < n1 && k < n0 + PD; ++k) corners(u + 3 * k, S, res, offs, &ring[k % RING], 0);
+    for (int64_t k = n0; k < n1 && k < n0 + PD; ++k) corners(u + 3 * k, S, res, offs, &ring[k % RING]);
     for (int64_t n = n0; n < n1; ++n) {
-        if (n + PD < n1) {
-            Corners *nx = &ring[(n + PD) % RING];
-            corners(u + 3 * (n + PD), S, res, offs, nx, 1);
-            prefetch_rows(table, nx, S, res, 0);
-        }
-        const Corners *c = &ring[n % RING];
+        const Corners *c = ring_step(ring, u, n, n1, S, res, offs, table, 0);
         for (int64_t s = 0; s < S; ++s) {
             REAL *restrict o = out + (n * S + s) * NF;
             REAL v0[NF], v1[NF], v2[NF];
@@ -104,15 +109,9 @@ void kp_forward(const REAL *u, const REAL *table, int64_t n0, int64_t n1, int64_
 void kp_backward(const REAL *u, const REAL *table, int64_t n0, int64_t n1, int64_t S, const int64_t *res,
                  const int64_t *offs, const REAL *gout, REAL *gtable) {
     Corners ring[RING];
-    for (int64_t k = n0; k < n1 && k < n0 + PD; ++k) corners(u + 3 * k, S, res, offs, &ring[k % RING], 0);
+    for (int64_t k = n0; k < n1 && k < n0 + PD; ++k) corners(u + 3 * k, S, res, offs, &ring[k % RING]);
     for (int64_t n = n0; n < n1; ++n) {
-        if (n + PD < n1) {
-            Corners *nx = &ring[(n + PD) % RING];
-            corners(u + 3 * (n + PD), S, res, offs, nx, 1);
-            prefetch_rows(table, nx, S, res, 0);
-            prefetch_rows(gtable, nx, S, res, 1);
-        }
-        const Corners *c = &ring[n % RING];
+        const Corners *c = ring_step(ring, u, n, n1, S, res, offs, table, gtable);
         for (int64_t s = 0; s < S; ++s) {
             const REAL *restrict g = gout + (n * S + s) * NF;
             int64_t r = res[s];

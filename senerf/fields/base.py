@@ -1,10 +1,4 @@
-"""The interface every radiance field satisfies, and small shared helpers.
-
-A field maps world (or NDC) points ``xyz (N, 3)`` and unit view directions ``dirs (N, 3)`` to a
-non-negative density ``sigma (N,)`` and a colour ``rgb (N, 3)`` in [0, 1].  Self-training queries a
-teacher's :meth:`RadianceField.density` at arbitrary points, the renderer calls :meth:`forward`,
-the trainer adds :meth:`regularizer` to its loss.
-"""
+"""The interface every radiance field satisfies, and the helpers the fields share."""
 
 from __future__ import annotations
 
@@ -15,9 +9,10 @@ __all__ = ["RadianceField", "trunc_exp", "check_points", "normalize_aabb", "as_a
 
 
 class RadianceField(nn.Module):
-    """Base class: ``density(xyz)``, ``forward(xyz, dirs)``, ``regularizer()``.
+    """A field maps world (or NDC) points to a density ``>= 0`` and a colour in [0, 1].
 
-    Subclasses implement :meth:`density` and :meth:`forward`; :meth:`regularizer` defaults to zero.
+    Subclasses implement :meth:`density` (self-training queries a teacher's at arbitrary points) and
+    :meth:`forward` (the renderer's call); the trainer adds :meth:`regularizer`, 0 by default, to its loss.
     """
 
     def density(self, xyz: torch.Tensor) -> torch.Tensor:
@@ -48,8 +43,6 @@ class RadianceField(nn.Module):
 
 
 class _TruncExp(torch.autograd.Function):
-    """``exp(min(x, 15))`` forward; gradient ``exp(clamp(x, -15, 15))`` (straight through above 15)."""
-
     @staticmethod
     def forward(ctx, x):
         ctx.save_for_backward(x)
@@ -100,8 +93,7 @@ def normalize_aabb(xyz: torch.Tensor, aabb: torch.Tensor) -> tuple[torch.Tensor,
     Returns:
         ``(u (N, 3), inside (N,) bool)``; ``u`` is *not* clamped, ``inside`` means all ``|u| <= 1``.
     """
-    lo = aabb[0].to(xyz)
-    hi = aabb[1].to(xyz)
+    lo, hi = aabb.to(xyz)
     u = (xyz - lo) * (2.0 / (hi - lo)) - 1.0
     inside = (u.abs() <= 1.0).all(dim=-1)
     return u, inside

@@ -1,12 +1,13 @@
-"""The compiled fused K-Planes kernel (``_kplanes_kernel.c``): build, load, call.
+"""The compiled fused K-Planes kernel (``_kplanes_kernel.c``, package data): build, load, call.
 
-The C source is compiled with the system C compiler on first use (about a second) into a cache folder
-(``$SENERF_CACHE`` or ``~/.cache/senerf``, else the temp folder), keyed by a hash of source, flags, compiler
-and the CPU's feature flags, and loaded with :mod:`ctypes`.  Work is split over ``torch.get_num_threads()`` Python threads
-(ctypes releases the GIL), each on its own range of points; in the backward pass every thread accumulates
-into its own gradient buffer, so there are no races and the result is deterministic.  Nothing here is
-global state beyond a per-process cache of the loaded library.  When no compiler is available,
-:func:`load_kernel` returns ``None`` and callers fall back to the pure-PyTorch gather path.
+On first use the source is compiled (``$CC``, else ``cc`` or ``gcc``; ``-march=native`` where the compiler knows it)
+and loaded with :mod:`ctypes`; where it cannot be, :func:`load_kernel` returns ``None``, :func:`kernel_status` says
+why, and callers take the pure-PyTorch gather path.  The library is cached per user, never beside the (maybe
+read-only) source: in ``$SENERF_CACHE``, else ``$XDG_CACHE_HOME/senerf`` or ``~/.cache/senerf``, else a private
+folder in the temp folder, under a name hashing the source, the flags, the compiler and the macros it predefines
+(the instruction set), so no CPU is handed a library built for another.  ``-ffp-contract=off`` keeps the sums the
+same with or without fused multiply-add.  Work is split over ``torch.get_num_threads()`` threads (ctypes releases
+the GIL), each with its own points and gradient buffer: no races, deterministic results.
 """
 
 from __future__ import annotations
@@ -16,64 +17,107 @@ import functools
 import hashlib
 import os
 import platform
+import shlex
 import shutil
 import subprocess
 import tempfile
 import threading
+import warnings
 from pathlib import Path
 
 import torch
 
-__all__ = ["load_kernel", "kernel_status", "cpu_planes_path", "cpu_planes_warning", "fused_plane_features",
-           "fused_sh4", "MAX_FEATURES", "MAX_SCALES"]
+__all__ = ["load_kernel", "kernel_status", "cpu_planes_path", "cpu_planes_warning", "warn_without_kernel",
+           "fused_plane_features", "fused_sh4", "MAX_FEATURES", "MAX_SCALES"]
 
 MAX_FEATURES = 256
 MAX_SCALES = 8
 _SRC = Path(__file__).with_name("_kplanes_kernel.c")
-_FLAGS = ["-O3", "-march=native", "-fno-math-errno", "-fPIC", "-shared", "-std=c99"]
+_FLAGS = ["-O3", "-fno-math-errno", "-ffp-contract=off", "-fPIC", "-shared", "-std=c99"]
 _STATUS = {"status": "not loaded"}
 
 
+class _Unavailable(OSError):
+    """Why the kernel cannot be built or loaded here: one line, with the remedy where there is one."""
+
+
 def _cache_dir() -> Path:
-    env = os.environ.get("SENERF_CACHE")
-    cands = [Path(env)] if env else []
-    cands += [Path.home() / ".cache" / "senerf", Path(tempfile.gettempdir()) / "senerf-cache"]
-    for c in cands:
+    """The first usable cache folder (module docstring); the one in the shared temp folder only when it is this
+    user's and no one else may write to it (a library planted there would be loaded and run)."""
+    cands = [Path(os.environ["SENERF_CACHE"])] if os.environ.get("SENERF_CACHE") else []
+    try:
+        xdg = os.environ.get("XDG_CACHE_HOME")
+        cands.append(Path(xdg) / "senerf" if xdg else Path.home() / ".cache" / "senerf")
+    except RuntimeError:   # no home folder
+        pass
+    uid = os.getuid() if hasattr(os, "getuid") else None
+    shared = Path(tempfile.gettempdir()) / f"senerf-cache-{uid}"
+    for folder in [*cands, shared]:
         try:
-            c.mkdir(parents=True, exist_ok=True)
-            if os.access(c, os.W_OK):
-                return c
+            folder.mkdir(mode=0o700, parents=True, exist_ok=True)
+            st = folder.stat()
+            if folder == shared and uid is not None and (st.st_uid != uid or st.st_mode & 0o022):
+                continue
+            if os.access(folder, os.W_OK):
+                return folder
         except OSError:
             continue
-    raise OSError("no writable cache folder for the compiled kernel")
+    raise _Unavailable("no writable folder to cache it in: set $SENERF_CACHE to one")
 
 
-def _cpu_flags() -> str:
-    """The CPU feature flags (``-march=native`` code must not run on another CPU sharing the cache)."""
+def _compiler() -> list[str]:
+    """The C compiler's command: ``$CC`` split as a shell would (``ccache gcc``), else ``cc`` or ``gcc``."""
+    cmd = shlex.split(os.environ.get("CC", ""))
+    if cmd:
+        if shutil.which(cmd[0]) is None:
+            raise _Unavailable(f"$CC names {cmd[0]}, which is no program on PATH")
+        return cmd
+    found = shutil.which("cc") or shutil.which("gcc")
+    if found is None:
+        raise _Unavailable("no C compiler found: install one (cc or gcc on PATH) or name it in $CC")
+    return [found]
+
+
+def _call(cmd: list[str], timeout: float) -> bytes:
+    """``cmd``'s standard output, or :class:`_Unavailable` naming its first error line when it fails."""
     try:
-        with open("/proc/cpuinfo") as fh:
-            for line in fh:
-                if line.startswith(("flags", "Features")):
-                    return line
-    except OSError:
-        pass
-    return platform.processor()
+        done = subprocess.run(cmd, input=b"", capture_output=True, timeout=timeout)
+    except (OSError, subprocess.TimeoutExpired) as exc:
+        raise _Unavailable(f"{cmd[0]} cannot be run: {exc}") from None
+    if done.returncode != 0:
+        lines = [line.strip() for line in done.stderr.decode(errors="replace").splitlines() if line.strip()]
+        first = next((line for line in lines if "error" in line), lines[-1] if lines else "")
+        raise _Unavailable(f"{cmd[0]} failed (exit status {done.returncode}): {first[:200]}")
+    return done.stdout
+
+
+@functools.lru_cache(maxsize=None)
+def _target(cc: tuple[str, ...]) -> tuple[list[str], bytes]:
+    """``(march, macros)``: ``['-march=native']`` where the compiler knows it, else ``[]`` (its default target),
+    and the macros it predefines under that choice, which name the instruction set it builds for."""
+    try:
+        return ["-march=native"], _call([*cc, "-march=native", "-dM", "-E", "-x", "c", "-"], 60)
+    except _Unavailable:
+        return [], _call([*cc, "-dM", "-E", "-x", "c", "-"], 60)
 
 
 def _build(real: str, nf: int) -> Path:
-    cc = os.environ.get("CC") or shutil.which("cc") or shutil.which("gcc")
-    if cc is None:
-        raise OSError("no C compiler found")
-    src = _SRC.read_bytes()
-    key = hashlib.sha256(src + " ".join(_FLAGS + [real, str(nf), cc, platform.machine(), _cpu_flags()]).encode())
+    """The library for ``REAL`` = ``real`` and ``NF`` = ``nf``: found in the cache, else compiled into it."""
+    try:
+        src = _SRC.read_bytes()
+    except OSError:
+        raise _Unavailable(f"its C source {_SRC} is missing from this installation: reinstall senerf") from None
+    cc = _compiler()
+    march, macros = _target(tuple(cc))
+    flags = [*_FLAGS, *march, f"-DREAL={real}", f"-DNF={nf}"]
+    key = hashlib.sha256(b"\0".join([src, " ".join(cc + flags).encode(), platform.machine().encode(), macros]))
     out = _cache_dir() / f"kplanes_{real}_f{nf}_{key.hexdigest()[:16]}.so"
     if out.exists():
         return out
     fd, tmp = tempfile.mkstemp(suffix=".so", dir=out.parent)
     os.close(fd)
     try:
-        subprocess.run([cc, *_FLAGS, f"-DREAL={real}", f"-DNF={nf}", str(_SRC), "-o", tmp, "-lm"], check=True,
-                       capture_output=True, timeout=120)
+        _call([*cc, *flags, str(_SRC), "-o", tmp, "-lm"], 120)
         os.replace(tmp, out)  # atomic: concurrent builders race harmlessly
     finally:
         if os.path.exists(tmp):
@@ -84,41 +128,39 @@ def _build(real: str, nf: int) -> Path:
 @functools.lru_cache(maxsize=None)
 def load_kernel(dtype: torch.dtype, n_features: int = 16):
     """The ctypes library for ``torch.float32`` / ``torch.float64`` and ``n_features`` per plane, or ``None``
-    if it cannot be built."""
+    if it cannot be built or loaded (:func:`kernel_status` says why)."""
     real = {torch.float32: "float", torch.float64: "double"}.get(dtype)
     if real is None or not 1 <= n_features <= MAX_FEATURES:
         return None
     try:
-        lib = ctypes.CDLL(str(_build(real, int(n_features))))
-    except Exception as exc:  # no compiler, sandbox, ...: fall back to PyTorch
-        _STATUS["status"] = f"unavailable: {type(exc).__name__}: {exc}"[:300]
+        path = _build(real, int(n_features))
+        try:
+            lib = ctypes.CDLL(str(path))
+        except OSError as exc:
+            raise _Unavailable(f"the compiled library {path} cannot be loaded: {exc}") from None
+    except Exception as exc:  # sandbox, read-only disk, ...: fall back to PyTorch, saying why in one line
+        why = str(exc) if isinstance(exc, _Unavailable) else f"{type(exc).__name__}: {exc}"
+        _STATUS["status"] = "unavailable: " + " ".join(why.split())[:300]
         return None
     i64, ptr = ctypes.c_int64, ctypes.c_void_p
-    for name, extra in (("kp_forward", [ptr]), ("kp_backward", [ptr, ptr])):
+    planes = [ptr, ptr, i64, i64, i64, ptr, ptr]
+    for name, argtypes in (("kp_forward", planes + [ptr]), ("kp_backward", planes + [ptr, ptr]),
+                           ("kp_sh4", [ptr, i64, i64, ptr])):
         fn = getattr(lib, name)
-        fn.argtypes = [ptr, ptr, i64, i64, i64, ptr, ptr] + extra
-        fn.restype = None
-    lib.kp_sh4.argtypes = [ptr, i64, i64, ptr]
-    lib.kp_sh4.restype = None
-    if lib.kp_nf() != n_features:  # pragma: no cover - stale cache entry
-        return None
+        fn.argtypes, fn.restype = argtypes, None
     _STATUS["status"] = "loaded"
     return lib
 
 
 def kernel_status() -> str:
-    """``'loaded'``, ``'not loaded'`` or ``'unavailable: <reason>'``."""
+    """``'loaded'``, ``'not loaded'`` or ``'unavailable: <reason>'`` (one line) after the latest load."""
     return _STATUS["status"]
 
 
 def cpu_planes_path(n_features: int = 16) -> str:
     """Which code K-Planes fields of ``n_features`` per plane run on the CPU: ``'compiled'`` (this module's
-    kernel, built or found in the cache now) or ``'pytorch'`` (the pure-PyTorch gather path of
-    :mod:`senerf.fields.interp`, when the kernel cannot be built: :func:`kernel_status` says why).
-
-    The two sum in other orders, so a fit's figures differ in their last bits between them, and the PyTorch path
-    is slower (lego Extreme at 100x100, fast preset's teacher, 2 cores: 37 s against 23 s of fitting; BENCHMARKS.md,
-    session 24).
+    kernel, built or found in the cache now) or ``'pytorch'`` (the slower gather path of :mod:`senerf.fields.interp`,
+    whose sums run in another order: a fit's figures differ in their last bits).
 
     Example:
         >>> cpu_planes_path() in ("compiled", "pytorch")
@@ -128,15 +170,23 @@ def cpu_planes_path(n_features: int = 16) -> str:
 
 
 def cpu_planes_warning(n_features: int = 16) -> str | None:
-    """The warning a command prints before it fits or renders K-Planes fields of ``n_features`` per plane on the
-    CPU without the compiled kernel (:func:`cpu_planes_path` ``'pytorch'``), naming why; None with the kernel."""
+    """The one-line warning for K-Planes fields of ``n_features`` per plane on the CPU without the compiled kernel,
+    naming why and, where there is one, the remedy; None with the kernel."""
     if cpu_planes_path(n_features) == "compiled":
         return None
     why = f"more than {MAX_FEATURES} features per plane" if n_features > MAX_FEATURES \
         else kernel_status().removeprefix("unavailable: ")
-    return (f"the compiled K-Planes kernel cannot be used ({why}); the pure-PyTorch path runs instead: slower (1.6x "
-            f"measured), and its figures differ in their last digits from the kernel's (a C compiler on PATH, or $CC, "
-            f"gives the kernel)")
+    return (f"the compiled K-Planes kernel cannot be used ({why}); the pure-PyTorch path runs instead: slower, and "
+            f"its figures differ in their last digits from the kernel's")
+
+
+def warn_without_kernel(model, device) -> None:
+    """Warn (:func:`cpu_planes_warning`) before ``model`` (a :class:`senerf.config.ModelConfig`) fits or renders a
+    K-Planes field on the CPU ``device`` without the compiled kernel."""
+    if model.field == "kplanes" and str(device).split(":")[0] == "cpu":
+        line = cpu_planes_warning(model.n_features)
+        if line is not None:
+            warnings.warn(line, stacklevel=2)
 
 
 def _split(n: int, parts: int) -> list[tuple[int, int]]:
@@ -150,15 +200,9 @@ def _split(n: int, parts: int) -> list[tuple[int, int]]:
 def _run(calls, keep: tuple) -> None:
     """Run ``calls[1:]`` on worker threads and ``calls[0]`` here; return when all are done.
 
-    The calls write through raw pointers into tensors; ``keep`` (those tensors) is held by every worker until
-    its call returns.  An interrupt (Ctrl-C, or SIGTERM, which senerf's commands raise as KeyboardInterrupt)
-    can leave this function while a worker still runs, and the caller then drops its tensors: without
-    ``keep`` their memory was freed under the worker, and senerf-fit died of a segmentation fault instead of
-    exiting 130.
+    Every worker holds ``keep`` (the tensors the calls write into through raw pointers) until its call returns:
+    an interrupt can leave this function while a worker still runs, and those tensors must not be freed under it.
     """
-    if len(calls) == 1:
-        calls[0]()
-        return
     threads = [threading.Thread(target=_work, args=(call, keep)) for call in calls[1:]]
     for t in threads:
         t.start()
@@ -168,15 +212,13 @@ def _run(calls, keep: tuple) -> None:
 
 
 def _work(call, keep: tuple) -> None:
-    """A worker's body: ``keep`` is referenced (by the thread's arguments) until ``call`` returns."""
     call()
 
 
 class _Fused(torch.autograd.Function):
     @staticmethod
     def forward(ctx, table, u, res, offs, lib):
-        n, nf = u.shape[0], table.shape[1]
-        s = res.shape[0]
+        n, nf, s = u.shape[0], table.shape[1], res.shape[0]
         out = table.new_empty(n, s * nf)
         args = (u.data_ptr(), table.data_ptr())
         tail = (s, res.data_ptr(), offs.data_ptr(), out.data_ptr())
@@ -210,9 +252,9 @@ def fused_plane_features(table: torch.Tensor, u: torch.Tensor, resolutions: tupl
         table: ``(rows, F)`` contiguous CPU float32/float64 (layout of :mod:`senerf.fields.interp`).
         u: ``(N, 3)`` coordinates clamped to ``[-1, 1]`` (no gradient flows to ``u``).
     Returns:
-        ``(N, S * F)`` (differentiable in ``table``) or ``None`` (``table`` or ``u`` not on the CPU, other
-        dtype, ``u`` needs a gradient, F > MAX_FEATURES, or no compiler).  The C code reads raw pointers, so
-        points on another device must never reach it (they would be read as host memory).
+        ``(N, S * F)`` (differentiable in ``table``), or ``None`` when either is off the CPU (the C code would
+        read device pointers as host memory), of another dtype, ``u`` needs a gradient, F > MAX_FEATURES, or no
+        kernel can be loaded.
     """
     if (table.device.type != "cpu" or u.device.type != "cpu" or u.requires_grad or table.shape[1] > MAX_FEATURES
             or not table.is_contiguous() or len(resolutions) > MAX_SCALES):

@@ -7,20 +7,13 @@ import math
 
 import torch
 
-__all__ = ["sh_encoding", "sh_encoding_reference", "sh_dim", "positional_encoding", "anneal_weights"]
+from .ckernel import fused_sh4
 
-
-def sh_dim(degree: int) -> int:
-    """Number of coefficients of :func:`sh_encoding` of ``degree`` (``degree ** 2``)."""
-    if degree not in (1, 2, 3, 4):
-        raise ValueError(f"degree: expected 1..4, got {degree}")
-    return degree * degree
+__all__ = ["sh_encoding", "sh_encoding_reference", "positional_encoding", "anneal_weights"]
 
 
 def sh_encoding(dirs: torch.Tensor, degree: int = 4) -> torch.Tensor:
-    """Real spherical harmonics ``Y_lm`` for ``l < degree``: :func:`sh_encoding_reference`'s values, by the
-    compiled kernel of :mod:`senerf.fields.ckernel` for degree 4 on the CPU when ``dirs`` needs no gradient
-    (about 10x faster than the column-wise PyTorch expression), else by the reference.
+    """:func:`sh_encoding_reference`, by :func:`~senerf.fields.ckernel.fused_sh4` for degree 4 where it can run.
 
     Args:
         dirs: ``(N, 3)`` unit directions.
@@ -29,8 +22,6 @@ def sh_encoding(dirs: torch.Tensor, degree: int = 4) -> torch.Tensor:
         ``(N, degree ** 2)``.
     """
     if degree == 4 and dirs.ndim == 2 and dirs.shape[1] == 3:
-        from .ckernel import fused_sh4
-
         out = fused_sh4(dirs)
         if out is not None:
             return out
@@ -48,7 +39,8 @@ def sh_encoding_reference(dirs: torch.Tensor, degree: int = 4) -> torch.Tensor:
     Returns:
         ``(N, degree ** 2)``.
     """
-    n = sh_dim(degree)
+    if degree not in (1, 2, 3, 4):
+        raise ValueError(f"degree: expected 1..4, got {degree}")
     if dirs.ndim != 2 or dirs.shape[1] != 3:
         raise ValueError(f"dirs: expected shape (N, 3), got {tuple(dirs.shape)}")
     x, y, z = dirs.unbind(-1)
@@ -74,17 +66,14 @@ def sh_encoding_reference(dirs: torch.Tensor, degree: int = 4) -> torch.Tensor:
             1.4453057213202769 * z * (x2 - y2),
             0.59004358992664352 * x * (-x2 + 3.0 * y2),
         ]
-    res = torch.stack(out, dim=-1)
-    assert res.shape[-1] == n
-    return res
+    return torch.stack(out, dim=-1)
 
 
 def anneal_weights(eta: float, n_freqs: int, dtype=torch.float32, device=None) -> torch.Tensor:
     """Coarse-to-fine weights ``w_j = (1 - cos(pi * clamp(eta - j, 0, 1))) / 2`` for ``j < n_freqs``.
 
     Args:
-        eta: annealing parameter (``n_freqs * step / N``); ``eta <= j`` switches band j off,
-            ``eta >= j + 1`` fully on.
+        eta: ``n_freqs * step / N``; band ``j`` is off for ``eta <= j``, fully on for ``eta >= j + 1``.
     Returns:
         ``(n_freqs,)``.
     """
@@ -93,8 +82,7 @@ def anneal_weights(eta: float, n_freqs: int, dtype=torch.float32, device=None) -
     return ((1.0 - torch.cos(math.pi * a)) / 2.0).to(dtype=dtype, device=device)
 
 
-def positional_encoding(x: torch.Tensor, n_freqs: int, weights: torch.Tensor | None = None,
-                        include_input: bool = True) -> torch.Tensor:
+def positional_encoding(x: torch.Tensor, n_freqs: int, weights: torch.Tensor | None = None) -> torch.Tensor:
     """NeRF positional encoding ``[x, sin(2^j pi x), cos(2^j pi x)]_j`` with optional band weights.
 
     Args:
@@ -102,8 +90,8 @@ def positional_encoding(x: torch.Tensor, n_freqs: int, weights: torch.Tensor | N
         n_freqs: number of octaves.
         weights: ``(n_freqs,)`` per-band weights (:func:`anneal_weights`) or ``None`` (all ones).
     Returns:
-        ``(N, D * (2 * n_freqs + include_input))``; band j occupies ``sin`` then ``cos`` of every
-        input dimension.
+        ``(N, D * (2 * n_freqs + 1))``: ``x``, then for band j the ``sin`` then the ``cos`` of every input
+        dimension.
     """
     if x.ndim != 2:
         raise ValueError(f"x: expected shape (N, D), got {tuple(x.shape)}")
@@ -115,4 +103,4 @@ def positional_encoding(x: torch.Tensor, n_freqs: int, weights: torch.Tensor | N
             raise ValueError(f"weights: expected shape ({n_freqs},), got {tuple(weights.shape)}")
         enc = enc * weights.to(enc)[None, :, None]
     enc = enc.reshape(x.shape[0], 2 * n_freqs * x.shape[1])   # explicit: N = 0 (no sample kept) is valid
-    return torch.cat([x, enc], dim=-1) if include_input else enc
+    return torch.cat([x, enc], dim=-1)

@@ -1,16 +1,11 @@
 """Bilinear interpolation of many 2D feature planes stored in one flat table.
 
-Fast path (:func:`plane_interp`): every plane of every scale lives in one ``(rows, F)`` table (plane of
-resolution ``r`` = ``r * r`` consecutive rows, row ``b * r + a`` holds texel ``(a, b)``, ``a`` along the
-first coordinate of the pair).  The four corners are gathered and blended by one ``embedding_bag``
-(``per_sample_weights``) in a custom autograd function whose backward scatters the four corners of a texel
-quad with one ``index_add_`` into a ``(rows, 4F)`` buffer.  This is the pure-PyTorch fallback (any device);
-on CPU the compiled kernel of :mod:`senerf.fields.ckernel` is several times faster.
-
-Reference (:func:`plane_interp_reference`): ``torch.nn.functional.grid_sample(align_corners=True)``
-plane by plane.  Both agree in value and gradient (tests/fields/test_kplanes.py), except exactly on the box's
-faces (``u = +-1``), where the interpolation has a kink: ``gather`` returns a one-sided gradient there and
-``grid_sample`` 0, both valid subgradients.
+Every plane of every scale lives in one ``(rows, F)`` table: a plane of resolution ``r`` is ``r * r``
+consecutive rows, row ``b * r + a`` holds texel ``(a, b)``, ``a`` along the first coordinate of the pair.
+:func:`plane_interp` is the pure-PyTorch path (any device; on CPU the compiled kernel of
+:mod:`senerf.fields.ckernel` replaces it), :func:`plane_interp_reference` the ``grid_sample`` one.  Both agree
+in value and gradient, except exactly on the box's faces (``u = +-1``), where the interpolation has a kink:
+``gather`` returns a one-sided gradient there and ``grid_sample`` 0, both valid subgradients.
 """
 
 from __future__ import annotations
@@ -18,7 +13,7 @@ from __future__ import annotations
 import torch
 import torch.nn.functional as F
 
-__all__ = ["PAIRS", "plane_layout", "corner_weights", "plane_interp", "gather_blend", "plane_interp_reference"]
+__all__ = ["PAIRS", "plane_layout", "plane_interp", "plane_interp_reference"]
 
 #: lookups per backward chunk: keeps each temporary at a few MB so the allocator reuses heap memory
 _CHUNK = 1 << 15
@@ -39,46 +34,13 @@ def plane_layout(resolutions: tuple[int, ...], n_planes: int = 3) -> tuple[list[
     return offsets, row
 
 
-def corner_weights(u: torch.Tensor, resolutions: tuple[int, ...], offsets: list[int],
-                   pairs=PAIRS) -> tuple[torch.Tensor, torch.Tensor]:
-    """Corner rows and bilinear weights (``align_corners=True``) for every point, scale and plane.
-
-    Args:
-        u: ``(N, 3)`` normalised coordinates in ``[-1, 1]`` (values outside are clamped to the border).
-        resolutions: per-scale plane resolution ``r_s``.
-        offsets: from :func:`plane_layout`.
-    Returns:
-        ``(idx (N * S * P, 4) int64, w (N * S * P, 4))``; row order is point, scale, plane; corners
-        ``(a0, b0), (a0 + 1, b0), (a0, b0 + 1), (a0 + 1, b0 + 1)``.  ``w`` is differentiable in ``u``.
-    """
-    n = u.shape[0]
-    n_s, n_p = len(resolutions), len(pairs)
-    cols = [c for pr in pairs for c in pr]
-    up = u[:, cols].view(n, 1, n_p, 2)                                          # (N, 1, P, 2)
-    res = torch.tensor(resolutions, dtype=u.dtype, device=u.device).view(1, n_s, 1, 1)
-    pos = ((up + 1.0) * 0.5 * (res - 1.0)).clamp(min=0.0)
-    pos = torch.minimum(pos, res - 1.0)                                         # (N, S, P, 2)
-    i0 = torch.minimum(pos.detach().floor(), res - 2.0)
-    f = pos - i0
-    i0 = i0.long()
-    res_i = torch.tensor(resolutions, dtype=torch.long, device=u.device).view(1, n_s, 1)
-    off = torch.tensor(offsets, dtype=torch.long, device=u.device).view(1, n_s, n_p)
-    base = off + i0[..., 1] * res_i + i0[..., 0]                               # (N, S, P)
-    step = torch.stack([torch.zeros_like(res_i), torch.ones_like(res_i), res_i, res_i + 1], dim=-1)
-    idx = (base.unsqueeze(-1) + step).reshape(-1, 4)
-    fa, fb = f[..., 0], f[..., 1]
-    ga, gb = 1.0 - fa, 1.0 - fb
-    w = torch.stack([ga * gb, fa * gb, ga * fb, fa * fb], dim=-1).reshape(-1, 4)
-    return idx, w
-
-
 class _GatherBlend(torch.autograd.Function):
-    """``out[m] = sum_c w[m, c] * table[idx[m, c]]``.
+    """``out[m] = sum_c w[m, c] * table[idx[m, c]]`` for ``table (R, F)``, ``idx (M, 4)``, ``w (M, 4)``.
 
-    Forward: one fused ``embedding_bag(mode='sum', per_sample_weights=w)``.  Backward into the table:
-    the four corners of a texel quad are ``base, base + 1, base + r, base + r + 1``, so the gradients of
-    all four go into one ``(rows, 4F)`` "quad" buffer with a single ``index_add_`` at ``base`` (one row of
-    4F per lookup instead of four rows of F), then the buffer is folded back with shifted slice adds.
+    ``idx[:, 1:] == idx[:, :1] + (1, r, r + 1)`` must hold, with ``r = strides[k]`` for lookups whose base row
+    lies in ``spans[k] = (first_row, end_row)`` (one plane, or a run of planes sharing ``r``).  Backward into
+    the table: the gradients of a quad's four corners go into one ``(rows, 4F)`` buffer with a single
+    ``index_add_`` at ``base`` (one row of 4F per lookup, not four rows of F), then fold back by slice adds.
     """
 
     @staticmethod
@@ -109,33 +71,40 @@ class _GatherBlend(torch.autograd.Function):
         return g_table, None, g_w, None, None
 
 
-def gather_blend(table: torch.Tensor, idx: torch.Tensor, w: torch.Tensor, strides, spans) -> torch.Tensor:
-    """Blend four gathered rows: ``(table (R, F), idx (M, 4) int64, w (M, 4)) -> (M, F)``.
-
-    ``idx[:, 1:] == idx[:, :1] + (1, r, r + 1)`` must hold, with ``r = strides[k]`` for lookups whose base row
-    lies in ``spans[k] = (first_row, end_row)``: every span is one plane (or a run of planes sharing r).
-    """
-    if table.ndim != 2 or idx.ndim != 2 or idx.shape[1] != 4 or w.shape != idx.shape:
-        raise ValueError(f"gather_blend: bad shapes table {tuple(table.shape)}, idx {tuple(idx.shape)}, "
-                         f"w {tuple(w.shape)}")
-    return _GatherBlend.apply(table, idx, w.to(table.dtype), tuple(strides), tuple(spans))
-
-
 def plane_interp(table: torch.Tensor, u: torch.Tensor, resolutions: tuple[int, ...],
                  offsets: list[int], pairs=PAIRS) -> torch.Tensor:
-    """Bilinear features of every plane of every scale (fast path).
+    """Bilinear features (``align_corners=True``) of every plane of every scale (fast path).
 
     Args:
         table: ``(rows, F)`` all planes (layout in the module docstring).
-        u: ``(N, 3)`` coordinates in ``[-1, 1]`` (clamped to the border outside).
+        u: ``(N, 3)`` normalised coordinates in ``[-1, 1]`` (values outside are clamped to the border).
+        resolutions: per-scale plane resolution ``r_s``.
+        offsets: from :func:`plane_layout`.
     Returns:
-        ``(N, S, P, F)``.
+        ``(N, S, P, F)``, differentiable in ``table`` and ``u``.
     """
-    idx, w = corner_weights(u, resolutions, offsets, pairs)
-    n_p = len(pairs)
+    n = u.shape[0]
+    n_s, n_p = len(resolutions), len(pairs)
+    cols = [c for pr in pairs for c in pr]
+    up = u[:, cols].view(n, 1, n_p, 2)                                          # (N, 1, P, 2)
+    res = torch.tensor(resolutions, dtype=u.dtype, device=u.device).view(1, n_s, 1, 1)
+    pos = ((up + 1.0) * 0.5 * (res - 1.0)).clamp(min=0.0)
+    pos = torch.minimum(pos, res - 1.0)                                         # (N, S, P, 2)
+    i0 = torch.minimum(pos.detach().floor(), res - 2.0)
+    f = pos - i0
+    i0 = i0.long()
+    res_i = torch.tensor(resolutions, dtype=torch.long, device=u.device).view(1, n_s, 1)
+    off = torch.tensor(offsets, dtype=torch.long, device=u.device).view(1, n_s, n_p)
+    base = off + i0[..., 1] * res_i + i0[..., 0]                               # (N, S, P)
+    # rows point, scale, plane; columns the corners (a0, b0), (a0 + 1, b0), (a0, b0 + 1), (a0 + 1, b0 + 1)
+    step = torch.stack([torch.zeros_like(res_i), torch.ones_like(res_i), res_i, res_i + 1], dim=-1)
+    idx = (base.unsqueeze(-1) + step).reshape(-1, 4)
+    fa, fb = f[..., 0], f[..., 1]
+    ga, gb = 1.0 - fa, 1.0 - fb
+    w = torch.stack([ga * gb, fa * gb, ga * fb, fa * fb], dim=-1).reshape(-1, 4)
     spans = [(offsets[s * n_p], offsets[s * n_p] + n_p * r * r) for s, r in enumerate(resolutions)]
-    out = gather_blend(table, idx, w, resolutions, spans)
-    return out.view(u.shape[0], len(resolutions), len(pairs), table.shape[1])
+    out = _GatherBlend.apply(table, idx, w.to(table.dtype), tuple(resolutions), tuple(spans))
+    return out.view(n, n_s, n_p, table.shape[1])
 
 
 def plane_interp_reference(planes: list[torch.Tensor], u: torch.Tensor, pairs=PAIRS) -> torch.Tensor:

@@ -1,14 +1,4 @@
-"""Hybrid static K-Planes field (REFERENCE section 4) in plain PyTorch.
-
-Three planes (xy, xz, yz) per scale, bilinear features multiplied (Hadamard) across the planes of a
-scale and concatenated across scales, then a density MLP (truncated-exp density + geometry features)
-and a colour MLP on ``[geometry features, SH degree-4 encoding of the view direction]``.
-Points are normalised by the field's AABB; points outside it have density 0.
-
-Paper (Blender) configuration: ``resolution=128, multires=(1, 2, 4), n_features=32``.  The defaults here
-are smaller (``64, (1, 2, 4), 16``) because the project trains on 2 CPU cores; see
-benchmarks/bench_fields.py for the throughput of both.
-"""
+"""Hybrid static K-Planes field (REFERENCE section 4) in plain PyTorch, with the compiled kernel on CPU."""
 
 from __future__ import annotations
 
@@ -17,7 +7,7 @@ from torch import nn
 
 from .base import RadianceField, as_aabb, check_points, normalize_aabb, trunc_exp
 from .ckernel import fused_plane_features, kernel_status
-from .encoding import sh_encoding, sh_dim
+from .encoding import sh_encoding
 from .interp import PAIRS, plane_interp, plane_interp_reference, plane_layout
 from .mlp import make_generator, relu_mlp, seeded_linear
 
@@ -25,7 +15,11 @@ __all__ = ["KPlanesField"]
 
 
 class KPlanesField(RadianceField):
-    """K-Planes (hybrid, static).
+    """K-Planes (hybrid, static): three planes (xy, xz, yz) per scale, bilinear features multiplied (Hadamard)
+    across the planes of a scale and concatenated across scales, then a density MLP (truncated-exp density and
+    geometry features) and a colour MLP on ``[geometry features, SH encoding (degree 4) of the view direction]``.
+    The paper's (Blender) configuration is ``resolution=128, multires=(1, 2, 4), n_features=32``; the defaults
+    are smaller, for CPU training.
 
     Args:
         aabb: ``(2, 3)`` box ``[min, max]``; the planes cover it, points outside get density 0.
@@ -33,38 +27,30 @@ class KPlanesField(RadianceField):
         n_features: features per plane.
         multires: resolution multipliers, one scale each.
         view_dependent: colour MLP sees the SH encoding of the view direction; ``False`` drops it.
-        hidden: width of both MLPs (density: 1 hidden layer; colour: 2).  32 by default (the paper: 64; on
-            lego at 100x100 32 lost nothing and trains 1.8x faster, see ``ModelConfig.hidden``).
-        geo_features: geometry features passed from the density to the colour MLP (16 by default, the paper
-            15: with the 16 SH coefficients the colour MLP's input is 32 wide, which the matmuls handle
-            markedly faster than 31).
-        sh_degree: SH encoding degree (4 -> 16 coefficients).
+        hidden: width of both MLPs (density: 1 hidden layer; colour: 2); the paper uses 64.
+        geo_features: geometry features passed from the density to the colour MLP (the paper: 15; 16 makes the
+            colour MLP's input, with the 16 SH coefficients, 32 wide).
         density_shift: added to the raw density before ``trunc_exp``.
         generator: seeds every initial value (planes U(0.1, 0.5), MLP weights); ``None`` = seed 0.
-        chunk: points per MLP pass; larger inputs are split (autograd still sees one batch).  Keeps the MLP
-            temporaries at a few MB, which the allocator recycles instead of mapping fresh pages (about 15 %
-            less CPU time per sample, measured on 196k-sample batches, 1 thread).
-        backend: plane interpolation: ``'auto'`` (the compiled fused kernel of
-            :mod:`senerf.fields.ckernel` on CPU when it can be built and no gradient w.r.t. points is
-            needed, else ``'gather'``), ``'fused'`` (same, but raise if the kernel is unavailable),
-            ``'gather'`` (pure PyTorch ``embedding_bag`` / ``index_add_``), ``'grid_sample'`` (reference).
+        chunk: points per MLP pass; larger inputs are split (autograd still sees one batch), so the MLP
+            temporaries stay at a few MB, which the allocator recycles instead of mapping fresh pages.
+        backend: plane interpolation: ``'auto'`` (the compiled kernel of :mod:`senerf.fields.ckernel` where it
+            can be used, else ``'gather'``), ``'fused'`` (the kernel, or raise), ``'gather'`` (pure PyTorch
+            ``embedding_bag`` / ``index_add_``), ``'grid_sample'`` (reference).
 
     Attributes:
         table: ``(rows, n_features)`` parameter holding every plane (see :mod:`senerf.fields.interp`).
     """
 
     def __init__(self, aabb, resolution: int = 64, n_features: int = 16, multires=(1, 2, 4),
-                 view_dependent: bool = True, hidden: int = 32, geo_features: int = 16,
-                 sh_degree: int = 4, density_shift: float = 0.0,
-                 generator: torch.Generator | None = None, backend: str = "auto",
-                 chunk: int = 32768):
+                 view_dependent: bool = True, hidden: int = 32, geo_features: int = 16, density_shift: float = 0.0,
+                 generator: torch.Generator | None = None, backend: str = "auto", chunk: int = 32768):
         super().__init__()
         gen = make_generator(generator)
         self.register_buffer("aabb", as_aabb(aabb))
         self.resolutions = tuple(int(resolution * m) for m in multires)
         self.n_features = int(n_features)
         self.view_dependent = bool(view_dependent)
-        self.sh_degree = int(sh_degree)
         self.geo_features = int(geo_features)
         self.density_shift = float(density_shift)
         if backend not in ("auto", "fused", "gather", "grid_sample"):
@@ -78,12 +64,11 @@ class KPlanesField(RadianceField):
         n_in = len(self.resolutions) * self.n_features
         self.density_net = nn.Sequential(seeded_linear(n_in, hidden, gen), nn.ReLU(inplace=True),
                                          seeded_linear(hidden, 1 + self.geo_features, gen))
-        c_in = self.geo_features + (sh_dim(self.sh_degree) if self.view_dependent else 0)
+        c_in = self.geo_features + (16 if self.view_dependent else 0)   # 16 SH coefficients (degree 4)
         self.color_net = nn.Sequential(seeded_linear(c_in, hidden, gen), nn.ReLU(inplace=True),
                                        seeded_linear(hidden, hidden, gen), nn.ReLU(inplace=True),
                                        seeded_linear(hidden, 3, gen))
 
-    # -- planes ---------------------------------------------------------------------------------
     def plane(self, scale: int, index: int) -> torch.Tensor:
         """View ``(r, r, F)`` (row b, column a, feature) of plane ``index`` (0 xy, 1 xz, 2 yz) of ``scale``."""
         r = self.resolutions[scale]
@@ -120,39 +105,35 @@ class KPlanesField(RadianceField):
     def _decode(self, xyz: torch.Tensor, dirs: torch.Tensor | None, with_rgb: bool):
         """Plane features for all points at once (one kernel call, one table-sized gradient buffer), then
         the MLPs in chunks of ``self.chunk`` points (``torch.split``: one concatenation in backward)."""
-        feat, inside = self.features(xyz)
+        feat, inside = self.features(xyz)   # checks xyz
+        if with_rgb and self.view_dependent and (dirs is None or dirs.shape != xyz.shape):
+            raise ValueError(f"dirs: expected shape {tuple(xyz.shape)}, got "
+                             f"{None if dirs is None else tuple(dirs.shape)}")
         keep = inside.to(feat.dtype)
         sig, rgb = [], []
-        pieces = [torch.split(x, self.chunk) for x in (feat, keep)]
         dpieces = torch.split(dirs, self.chunk) if (with_rgb and self.view_dependent) else None
-        for i, (f, k) in enumerate(zip(*pieces)):
+        for i, (f, k) in enumerate(zip(torch.split(feat, self.chunk), torch.split(keep, self.chunk))):
             raw, geo = torch.split(relu_mlp(f, self.density_net), [1, self.geo_features], dim=1)
             sig.append(trunc_exp(raw.squeeze(1) + self.density_shift) * k)
             if with_rgb:
                 if dpieces is not None:
-                    geo = torch.cat([geo, sh_encoding(dpieces[i].to(geo.dtype), self.sh_degree)], dim=-1)
+                    geo = torch.cat([geo, sh_encoding(dpieces[i].to(geo.dtype))], dim=-1)
                 rgb.append(torch.sigmoid(relu_mlp(geo, self.color_net)))
         sigma = sig[0] if len(sig) == 1 else torch.cat(sig)
         if not with_rgb:
             return sigma, None
         return sigma, (rgb[0] if len(rgb) == 1 else torch.cat(rgb))
 
-    # -- RadianceField ----------------------------------------------------------------------------
     def density(self, xyz: torch.Tensor) -> torch.Tensor:
         """Density ``(N,)`` at ``xyz (N, 3)``; 0 outside the AABB."""
         return self._decode(xyz, None, with_rgb=False)[0]
 
     def forward(self, xyz: torch.Tensor, dirs: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """``(sigma (N,), rgb (N, 3))`` at ``xyz (N, 3)`` seen along unit ``dirs (N, 3)``."""
-        check_points(xyz)
-        if self.view_dependent and (dirs is None or dirs.shape != xyz.shape):
-            raise ValueError(f"dirs: expected shape {tuple(xyz.shape)}, got "
-                             f"{None if dirs is None else tuple(dirs.shape)}")
         return self._decode(xyz, dirs, with_rgb=True)
 
     def regularizer(self) -> torch.Tensor:
-        """Plane total variation: per plane ``mean(d_a^2) + mean(d_b^2)``, summed over the 3 planes,
-        averaged over scales."""
+        """Plane total variation ``mean(d_a^2) + mean(d_b^2)`` per plane, summed over planes, averaged over scales."""
         total = self.table.new_zeros(())
         for s in range(len(self.resolutions)):
             for p in range(len(PAIRS)):

@@ -10,13 +10,9 @@ from torch import nn
 __all__ = ["seeded_linear", "make_generator", "relu_mlp"]
 
 
-def make_generator(generator: torch.Generator | None, seed: int = 0) -> torch.Generator:
-    """``generator`` itself, or a new CPU generator seeded with ``seed``."""
-    if generator is not None:
-        return generator
-    g = torch.Generator()
-    g.manual_seed(seed)
-    return g
+def make_generator(generator: torch.Generator | None) -> torch.Generator:
+    """``generator`` itself, or a new CPU generator seeded with 0."""
+    return generator if generator is not None else torch.Generator().manual_seed(0)
 
 
 def seeded_linear(n_in: int, n_out: int, generator: torch.Generator) -> nn.Linear:

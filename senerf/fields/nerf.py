@@ -6,7 +6,7 @@ import torch
 from torch import nn
 
 from .base import RadianceField, as_aabb, check_points, normalize_aabb
-from .encoding import anneal_weights, positional_encoding, sh_dim, sh_encoding
+from .encoding import anneal_weights, positional_encoding, sh_encoding
 from .mlp import make_generator, seeded_linear
 
 __all__ = ["NeRFField"]
@@ -15,10 +15,8 @@ __all__ = ["NeRFField"]
 class NeRFField(RadianceField):
     """MLP field on the positional encoding of (AABB-normalised) points.
 
-    Band ``j`` of the encoding is weighted by ``w_j = (1 - cos(pi clamp(eta - j, 0, 1))) / 2`` with
-    ``eta = n_freqs * step / N`` (:meth:`set_progress`); ``N = anneal_steps`` or, when
-    ``set_progress(step, total_steps)`` is given the total, a quarter of it.  Before any call to
-    :meth:`set_progress` no band is annealed (all weights 1).
+    The encoding's bands are weighted by :func:`~senerf.fields.anneal_weights` of ``eta = n_freqs * step / N``
+    (:meth:`set_progress`); before any call to :meth:`set_progress` every weight is 1.
 
     Args:
         aabb: ``(2, 3)`` box or ``None``; with a box, points are mapped to ``[-1, 1]^3`` and points outside
@@ -31,7 +29,7 @@ class NeRFField(RadianceField):
     """
 
     def __init__(self, aabb=None, n_freqs: int = 10, hidden: int = 128, n_layers: int = 4,
-                 view_dependent: bool = True, anneal_steps: int | None = None, sh_degree: int = 4,
+                 view_dependent: bool = True, anneal_steps: int | None = None,
                  generator: torch.Generator | None = None):
         super().__init__()
         gen = make_generator(generator)
@@ -39,27 +37,22 @@ class NeRFField(RadianceField):
         self.n_freqs = int(n_freqs)
         self.anneal_steps = anneal_steps
         self.view_dependent = bool(view_dependent)
-        self.sh_degree = int(sh_degree)
         self.register_buffer("band_weights", torch.ones(self.n_freqs))
         n_enc = 3 * (2 * self.n_freqs + 1)
         self.skip = n_layers // 2
-        layers = []
-        for i in range(n_layers):
-            n_in = n_enc if i == 0 else hidden + (n_enc if i == self.skip else 0)
-            layers.append(seeded_linear(n_in, hidden, gen))
-        self.trunk = nn.ModuleList(layers)
+        widths = [n_enc if i == 0 else hidden + (n_enc if i == self.skip else 0) for i in range(n_layers)]
+        self.trunk = nn.ModuleList(seeded_linear(n_in, hidden, gen) for n_in in widths)
         self.sigma_head = seeded_linear(hidden, 1, gen)
         self.feat = seeded_linear(hidden, hidden, gen)
-        c_in = hidden + (sh_dim(self.sh_degree) if self.view_dependent else 0)
+        c_in = hidden + (16 if self.view_dependent else 0)   # 16 SH coefficients (degree 4)
         self.color_head = nn.Sequential(seeded_linear(c_in, hidden // 2, gen), nn.ReLU(),
                                         seeded_linear(hidden // 2, 3, gen))
 
     def set_progress(self, step: int, total_steps: int | None = None) -> torch.Tensor:
         """Set the band weights for training ``step``; returns them ``(n_freqs,)``."""
-        n = self.anneal_steps if self.anneal_steps is not None else (
-            None if total_steps is None else total_steps / 4.0)
-        if n is None:
+        if self.anneal_steps is None and total_steps is None:
             raise ValueError("set_progress: give total_steps or construct with anneal_steps")
+        n = self.anneal_steps if self.anneal_steps is not None else total_steps / 4.0
         eta = self.n_freqs * float(step) / max(float(n), 1e-12)
         self.band_weights.copy_(anneal_weights(eta, self.n_freqs))
         return self.band_weights.clone()
@@ -90,5 +83,5 @@ class NeRFField(RadianceField):
         if self.view_dependent:
             if dirs is None or dirs.shape != xyz.shape:
                 raise ValueError(f"dirs: expected shape {tuple(xyz.shape)}")
-            f = torch.cat([f, sh_encoding(dirs.to(f.dtype), self.sh_degree)], dim=-1)
+            f = torch.cat([f, sh_encoding(dirs.to(f.dtype))], dim=-1)
         return sigma, torch.sigmoid(self.color_head(f))

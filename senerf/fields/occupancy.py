@@ -13,13 +13,11 @@ __all__ = ["OccupancyGrid"]
 class OccupancyGrid(nn.Module):
     """A ``res^3`` grid of density estimates over an AABB with a binary occupancy mask.
 
-    ``update(field)`` evaluates ``field.density`` at one point per cell (the centre, or jittered inside
-    the cell when a generator is given) and keeps ``density = max(decay * density, new)`` (a decaying
-    maximum, as instant-NGP); a cell is occupied while its estimate, or that of a cell up to ``dilate`` cells
-    away (3D max filter), exceeds ``threshold``: the dilation keeps cells that a surface crosses although
-    their sample point lies just outside it.  A fresh grid
-    is fully occupied, so rendering with it equals rendering without it until the first update.
-    Points outside the AABB are never occupied.
+    :meth:`update` keeps a decaying maximum of ``field.density`` at the cell centres, as instant-NGP; a cell
+    is occupied while its estimate, or that of a cell up to ``dilate`` cells away (3D max filter), exceeds
+    ``threshold``: the dilation keeps cells that a surface crosses although their centre lies just outside
+    it.  A fresh grid is fully occupied, so rendering with it equals rendering without it until the first
+    update.  Points outside the AABB are never occupied.
 
     Args:
         aabb: ``(2, 3)`` box.
@@ -51,18 +49,15 @@ class OccupancyGrid(nn.Module):
         return self.aabb[0] + g * (self.aabb[1] - self.aabb[0])
 
     @torch.no_grad()
-    def update(self, field, generator: torch.Generator | None = None, chunk: int = 65536) -> float:
-        """Refresh the estimates from ``field.density``; returns the occupied fraction.
+    def update(self, field, chunk: int = 65536) -> float:
+        """Set each cell's estimate to ``max(decay * estimate, density at its centre)``; returns the occupied
+        fraction.
 
         Args:
             field: anything with ``density(xyz (N, 3)) -> (N,)``.
-            generator: if given, one uniformly jittered point per cell instead of the centre.
+            chunk: points per ``density`` call.
         """
         pts = self.cell_centers()
-        if generator is not None:
-            size = (self.aabb[1] - self.aabb[0]) / self.resolution
-            jit = torch.rand(pts.shape, generator=generator, device=pts.device) - 0.5
-            pts = pts + jit * size
         new = torch.cat([field.density(pts[s:s + chunk]).float() for s in range(0, pts.shape[0], chunk)])
         old = torch.where(torch.isinf(self.density_grid), torch.zeros_like(new), self.density_grid * self.decay)
         self.density_grid.copy_(torch.maximum(old, new))

@@ -5,40 +5,12 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from .sampling import stratified_bins
+from .sampling import check_rays, stratified_bins
 
-__all__ = ["volume_render", "volume_render_reference", "render_rays", "render_image", "EMPTY_ACC"]
+__all__ = ["volume_render", "render_rays", "render_image", "EMPTY_ACC"]
 
 #: rays whose accumulated opacity is below this are "empty": their ray_dist is t_far
 EMPTY_ACC = 1e-6
-
-
-def _intervals(t: torch.Tensor, t_far: torch.Tensor) -> torch.Tensor:
-    """Interval lengths ``(R, S)``: ``t[i+1] - t[i]``, the last one ``t_far - t[-1]``, clamped to >= 0."""
-    nxt = torch.cat([t[:, 1:], t_far[:, None].to(t)], dim=1)
-    return (nxt - t).clamp(min=0.0)
-
-
-def _check(sigma, rgb, t, t_far):
-    if sigma.ndim != 2:
-        raise ValueError(f"sigma: expected shape (R, S), got {tuple(sigma.shape)}")
-    r, s = sigma.shape
-    if rgb.shape != (r, s, 3):
-        raise ValueError(f"rgb: expected shape {(r, s, 3)}, got {tuple(rgb.shape)}")
-    if t.shape != (r, s):
-        raise ValueError(f"t: expected shape {(r, s)}, got {tuple(t.shape)}")
-    if t_far.shape != (r,):
-        raise ValueError(f"t_far: expected shape {(r,)}, got {tuple(t_far.shape)}")
-
-
-def _background(background, rgb_out):
-    """``background`` as a tensor like ``rgb_out``, or None (black: nothing is added)."""
-    if background is None:
-        return None
-    bg = torch.as_tensor(background, dtype=rgb_out.dtype, device=rgb_out.device)
-    if bg.shape not in ((3,), tuple(rgb_out.shape)):
-        raise ValueError(f"background: expected shape (3,) or {tuple(rgb_out.shape)}, got {tuple(bg.shape)}")
-    return bg
 
 
 def volume_render(sigma: torch.Tensor, rgb: torch.Tensor, t: torch.Tensor, t_far: torch.Tensor,
@@ -59,34 +31,26 @@ def volume_render(sigma: torch.Tensor, rgb: torch.Tensor, t: torch.Tensor, t_far
         dict ``rgb (R, 3)``, ``acc (R,)`` (sum of weights), ``ray_dist (R,)`` (``sum w t / sum w``; for an
         empty ray, ``acc < EMPTY_ACC``, it is ``t_far``), ``weights (R, S)``, ``t (R, S)``.
     """
-    _check(sigma, rgb, t, t_far)
-    tau = sigma * _intervals(t, t_far)
+    if sigma.ndim != 2:
+        raise ValueError(f"sigma: expected shape (R, S), got {tuple(sigma.shape)}")
+    r, s = sigma.shape
+    for name, x, want in (("rgb", rgb, (r, s, 3)), ("t", t, (r, s)), ("t_far", t_far, (r,))):
+        if x.shape != want:
+            raise ValueError(f"{name}: expected shape {want}, got {tuple(x.shape)}")
+    delta = (torch.cat([t[:, 1:], t_far[:, None].to(t)], dim=1) - t).clamp(min=0.0)   # (R, S), >= 0
+    tau = sigma * delta
     # exclusive cumsum by shifting (not cumsum - tau: that cancels catastrophically after a huge tau)
     log_t = torch.cat([torch.zeros_like(tau[:, :1]), torch.cumsum(tau[:, :-1], dim=1)], dim=1)
     weights = torch.exp(-log_t) * (-torch.expm1(-tau))
     acc = weights.sum(dim=1)
     color = (weights.unsqueeze(-1) * rgb).sum(dim=1)
-    bg = _background(background, color)
-    if bg is not None:
+    if background is not None:
+        bg = torch.as_tensor(background, dtype=color.dtype, device=color.device)
+        if bg.shape not in ((3,), tuple(color.shape)):
+            raise ValueError(f"background: expected shape (3,) or {tuple(color.shape)}, got {tuple(bg.shape)}")
         color = color + (1.0 - acc).unsqueeze(-1) * bg
     num = (weights * t).sum(dim=1)
     dist = torch.where(acc >= EMPTY_ACC, num / acc.clamp(min=EMPTY_ACC), t_far.to(num))
-    return {"rgb": color, "acc": acc, "ray_dist": dist, "weights": weights, "t": t}
-
-
-def volume_render_reference(sigma, rgb, t, t_far, background=None) -> dict:
-    """Textbook ``cumprod`` compositing (for tests; use float64): ``T_i = prod_{k<i} (1 - alpha_k)``.
-    Same arguments and outputs as :func:`volume_render`."""
-    _check(sigma, rgb, t, t_far)
-    alpha = 1.0 - torch.exp(-sigma * _intervals(t, t_far))
-    trans = torch.cumprod(torch.cat([torch.ones_like(alpha[:, :1]), 1.0 - alpha[:, :-1]], dim=1), dim=1)
-    weights = trans * alpha
-    acc = weights.sum(1)
-    color = (weights[..., None] * rgb).sum(1)
-    bg = _background(background, color)
-    if bg is not None:
-        color = color + (1.0 - acc)[:, None] * bg
-    dist = torch.where(acc >= EMPTY_ACC, (weights * t).sum(1) / acc.clamp(min=EMPTY_ACC), t_far.to(t))
     return {"rgb": color, "acc": acc, "ray_dist": dist, "weights": weights, "t": t}
 
 
@@ -96,23 +60,18 @@ def render_rays(field, rays_o: torch.Tensor, rays_d: torch.Tensor, near: torch.T
     """Stratified ray marching through ``field`` and :func:`volume_render`.
 
     With ``occupancy`` (an :class:`~senerf.fields.OccupancyGrid`), samples in empty cells are dropped
-    before the field is evaluated (their density and colour are 0); where the grid is fully occupied the
-    result is identical to rendering without it.
+    before the field is evaluated (their density and colour are 0).
 
     Args:
-        field: a :class:`~senerf.fields.RadianceField`.
         rays_o: ``(R, 3)`` origins; rays_d: ``(R, 3)`` directions (unit for metric ``ray_dist``).
-        near, far: ``(R,)``; the last interval ends at ``far``.  For forward-facing scenes pass the rays of
-            :func:`~senerf.fields.ndc_rays` with ``near = 0``, ``far = 1``: ``ray_dist`` is then the NDC
-            parameter, and :func:`~senerf.fields.ndc_t_to_depth` turns it into camera z-depth.
+        near, far: ``(R,)``; the last interval ends at ``far``.  For the rays of :func:`~senerf.fields.ndc_rays`
+            pass 0 and 1: ``ray_dist`` is then the NDC parameter (:func:`~senerf.fields.ndc_t_to_depth`).
         n_samples: stratified bins per ray.
         background: see :func:`volume_render`.
     Returns:
         dict of :func:`volume_render` plus ``sigma (R, S)`` (the densities used).
     """
-    if rays_o.ndim != 2 or rays_o.shape[1] != 3 or rays_d.shape != rays_o.shape:
-        raise ValueError(f"rays_o/rays_d: expected equal shapes (R, 3), got {tuple(rays_o.shape)}, "
-                         f"{tuple(rays_d.shape)}")
+    check_rays(rays_o, rays_d)
     r = rays_o.shape[0]
     if near.shape != (r,) or far.shape != (r,):
         raise ValueError(f"near/far: expected shape ({r},), got {tuple(near.shape)}, {tuple(far.shape)}")
@@ -148,29 +107,20 @@ def render_image(field, origins, dirs, near, far, n_samples: int, background=Non
     """
     p = next(field.parameters(), None)
     dev = device if device is not None else (p.device if p is not None else "cpu")
-    o = torch.as_tensor(np.asarray(origins) if not torch.is_tensor(origins) else origins,
-                        dtype=torch.float32, device=dev)
-    d = torch.as_tensor(np.asarray(dirs) if not torch.is_tensor(dirs) else dirs,
-                        dtype=torch.float32, device=dev)
+    o, d, nr, fr = (torch.as_tensor(x if torch.is_tensor(x) else np.asarray(x), dtype=torch.float32, device=dev)
+                    for x in (origins, dirs, near, far))
     if o.ndim != 3 or o.shape[-1] != 3 or d.shape != o.shape:
         raise ValueError(f"origins/dirs: expected equal shapes (H, W, 3), got {tuple(o.shape)}, {tuple(d.shape)}")
     if isinstance(chunk, bool) or not isinstance(chunk, (int, np.integer)) or chunk < 1:
         raise ValueError(f"chunk: expected an integer >= 1 (rays per field call), got {chunk!r}")
     h, w = o.shape[:2]
     n = h * w
-    nr = torch.as_tensor(np.asarray(near) if not torch.is_tensor(near) else near, dtype=torch.float32,
-                         device=dev).expand(h, w).reshape(n)
-    fr = torch.as_tensor(np.asarray(far) if not torch.is_tensor(far) else far, dtype=torch.float32,
-                         device=dev).expand(h, w).reshape(n)
-    o, d = o.reshape(n, 3), d.reshape(n, 3)
-    rgb = np.empty((n, 3), np.float32)
-    acc = np.empty(n, np.float32)
-    dist = np.empty(n, np.float32)
+    o, d, nr, fr = o.reshape(n, 3), d.reshape(n, 3), nr.expand(h, w).reshape(n), fr.expand(h, w).reshape(n)
+    out = {"rgb": np.empty((n, 3), np.float32), "acc": np.empty(n, np.float32), "ray_dist": np.empty(n, np.float32)}
     for s in range(0, n, int(chunk)):
         e = min(n, s + int(chunk))
-        out = render_rays(field, o[s:e], d[s:e], nr[s:e], fr[s:e], n_samples, generator, background,
-                          occupancy, randomized)
-        rgb[s:e] = out["rgb"].float().cpu().numpy()
-        acc[s:e] = out["acc"].float().cpu().numpy()
-        dist[s:e] = out["ray_dist"].float().cpu().numpy()
-    return {"rgb": rgb.reshape(h, w, 3), "acc": acc.reshape(h, w), "ray_dist": dist.reshape(h, w)}
+        part = render_rays(field, o[s:e], d[s:e], nr[s:e], fr[s:e], n_samples, generator, background,
+                           occupancy, randomized)
+        for key, arr in out.items():
+            arr[s:e] = part[key].float().cpu().numpy()
+    return {key: arr.reshape((h, w) + arr.shape[1:]) for key, arr in out.items()}

@@ -7,6 +7,13 @@ import torch
 __all__ = ["stratified_bins", "ndc_rays", "ndc_t_to_depth"]
 
 
+def check_rays(rays_o: torch.Tensor, rays_d: torch.Tensor) -> None:
+    """Raise ``ValueError`` unless ``rays_o`` and ``rays_d`` share one shape ``(R, 3)``."""
+    if rays_o.ndim != 2 or rays_o.shape[1] != 3 or rays_d.shape != rays_o.shape:
+        raise ValueError(f"rays_o/rays_d: expected equal shapes (R, 3), got {tuple(rays_o.shape)}, "
+                         f"{tuple(rays_d.shape)}")
+
+
 def stratified_bins(near: torch.Tensor, far: torch.Tensor, n_bins: int,
                     generator: torch.Generator | None = None, randomized: bool = True) -> torch.Tensor:
     """One point per evenly spaced bin.
@@ -56,9 +63,7 @@ def ndc_rays(rays_o: torch.Tensor, rays_d: torch.Tensor, fx: float, fy: float, w
     Returns:
         ``(o_ndc (R, 3), d_ndc (R, 3))``; sample with ``t`` in ``[0, 1]``.
     """
-    if rays_o.ndim != 2 or rays_o.shape[1] != 3 or rays_d.shape != rays_o.shape:
-        raise ValueError(f"rays_o/rays_d: expected equal shapes (R, 3), got {tuple(rays_o.shape)}, "
-                         f"{tuple(rays_d.shape)}")
+    check_rays(rays_o, rays_d)
     if near <= 0:
         raise ValueError(f"near: expected > 0, got {near}")
     dz = rays_d[:, 2].clamp(min=1e-9)

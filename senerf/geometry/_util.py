@@ -1,22 +1,11 @@
-"""Private helpers shared by the geometry modules: dtypes and shape checks.
-
-Dtype rule of the whole package: the *data* argument of a function (points, uv, depth, eye, c2w for the
-pose functions) decides the output dtype: float32 stays float32, everything else (float64, ints, bools,
-lists) becomes float64.  Poses are always *composed* in float64.
-"""
+"""Private helpers of the geometry modules: dtypes (the rule is in the package docstring), argument checks,
+rigid matrices and lengths safe at any scale."""
 
 from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["float_dtype", "as_float", "check_last", "check_pose", "as_4x4", "unit_and_norm", "pow2_scale",
-           "broadcast_batch"]
-
-
-def float_dtype(x) -> np.dtype:
-    """``float32`` if ``x`` is a float32 array (or scalar), else ``float64``."""
-    dt = getattr(x, "dtype", None)
-    return np.dtype(np.float32) if dt == np.float32 else np.dtype(np.float64)
+from .intrinsics import Intrinsics
 
 
 def as_float(x, name: str, dtype=None) -> np.ndarray:
@@ -27,7 +16,9 @@ def as_float(x, name: str, dtype=None) -> np.ndarray:
         raise ValueError(f"{name}: cannot be converted to an array ({exc})") from None
     if arr.dtype.kind not in "biuf":
         raise ValueError(f"{name}: expected a real numeric array, got dtype {arr.dtype}")
-    return arr.astype(float_dtype(arr) if dtype is None else dtype, copy=False)
+    if dtype is None:
+        dtype = np.float32 if arr.dtype == np.float32 else np.float64
+    return arr.astype(dtype, copy=False)
 
 
 def check_last(arr: np.ndarray, tail: tuple, name: str) -> None:
@@ -39,13 +30,27 @@ def check_last(arr: np.ndarray, tail: tuple, name: str) -> None:
         raise ValueError(f"{name}: expected shape {want}, got {arr.shape}")
 
 
-def check_pose(c2w, name: str = "c2w", allow_3x4: bool = True) -> np.ndarray:
+def check_pose(c2w, name: str = "c2w") -> np.ndarray:
     """Return ``c2w`` as a float array of shape ``(..., 4, 4)`` or ``(..., 3, 4)`` (shape check only)."""
     arr = as_float(c2w, name)
-    if arr.ndim < 2 or arr.shape[-1] != 4 or arr.shape[-2] not in ((3, 4) if allow_3x4 else (4,)):
-        want = "(..., 4, 4) or (..., 3, 4)" if allow_3x4 else "(..., 4, 4)"
-        raise ValueError(f"{name}: expected shape {want}, got {arr.shape}")
+    if arr.ndim < 2 or arr.shape[-1] != 4 or arr.shape[-2] not in (3, 4):
+        raise ValueError(f"{name}: expected shape (..., 4, 4) or (..., 3, 4), got {arr.shape}")
     return arr
+
+
+def check_intrinsics(k, name: str = "intrinsics") -> None:
+    """Raise ``ValueError`` unless ``k`` is an :class:`Intrinsics` (a ``K`` matrix is refused, not guessed)."""
+    if not isinstance(k, Intrinsics):
+        raise ValueError(f"{name}: expected an Intrinsics, got {type(k).__name__}")
+
+
+def rigid_matrix(rot: np.ndarray, t: np.ndarray, dtype=np.float64) -> np.ndarray:
+    """``(..., 4, 4)`` ``[[rot, t], [0, 0, 0, 1]]`` of ``rot (..., 3, 3)`` and ``t (..., 3)`` (batches broadcast)."""
+    out = np.zeros(np.broadcast_shapes(rot.shape[:-2], t.shape[:-1]) + (4, 4), dtype=dtype)
+    out[..., :3, :3] = rot
+    out[..., :3, 3] = t
+    out[..., 3, 3] = 1.0
+    return out
 
 
 def as_4x4(c2w: np.ndarray) -> np.ndarray:
@@ -59,10 +64,9 @@ def as_4x4(c2w: np.ndarray) -> np.ndarray:
 def unit_and_norm(v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Unit vectors ``(..., 3)`` and lengths ``(...)`` of float64 ``v (..., 3)``, safe at any finite scale.
 
-    Each row is divided by a power of two near its largest ``|v_i|`` (an exact division) before
-    the norm is taken, so lengths near 1e-200 or 1e200 (whose squares underflow or overflow) still give
-    exact directions.  A zero row gives ``(0, 0)``; a length beyond the float64 range comes back ``inf``
-    with a finite direction.
+    Each row is divided by a power of two near its largest ``|v_i|`` (an exact division) before the norm is
+    taken, so lengths whose squares underflow or overflow still give exact directions.  A zero row gives
+    ``(0, 0)``; a length beyond the float64 range comes back ``inf`` with a finite direction.
     """
     scale = pow2_scale(v)
     scaled = v / scale
@@ -84,8 +88,7 @@ def pow2_scale(*vs: np.ndarray) -> np.ndarray:
 
 
 def broadcast_batch(*named: tuple) -> tuple:
-    """The broadcast of the batch shapes ``(name, shape)``, or a ValueError naming the arguments that clash
-    (NumPy's own message names none)."""
+    """The broadcast of the batch shapes ``(name, shape)``, or a ValueError naming the arguments that clash."""
     try:
         return np.broadcast_shapes(*(shape for _, shape in named))
     except ValueError:

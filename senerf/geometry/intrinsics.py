@@ -1,12 +1,10 @@
 """Pinhole camera intrinsics.
 
 Convention:
-    Pixel ``(i, j)`` (column ``i``, row ``j``) covers ``[i, i+1) x [j, j+1)``; its centre is
-    ``(i + 0.5, j + 0.5)``.  ``(cx, cy)`` is the principal point in that continuous system, so the ideal
-    principal point of a ``W x H`` image is ``(W/2, H/2)`` and the image covers ``[0, W) x [0, H)``.
-    With this convention resizing an image by ``s`` (pixel edges map to pixel edges) is exactly
-    ``K' = diag(s, s, 1) K``.  OpenCV puts the centre of pixel 0 at 0.0: subtract 0.5 from ``cx, cy``
-    (or from ``uv``) when handing them to ``cv2``.
+    Pixel ``(i, j)`` (column ``i``, row ``j``) covers ``[i, i+1) x [j, j+1)``, its centre is ``(i + 0.5, j + 0.5)``
+    and ``(cx, cy)`` lies in that system (DESIGN.md), so resizing an image by ``s`` is exactly
+    ``K' = diag(s, s, 1) K``.  OpenCV puts the centre of pixel 0 at 0.0: subtract 0.5 from ``cx, cy`` (or from
+    ``uv``) when handing them to ``cv2``.
 """
 
 from __future__ import annotations
@@ -31,14 +29,11 @@ def _positive_finite(value, name: str) -> float:
 
 
 def _size(value, name: str) -> int:
-    if isinstance(value, (bool, np.bool_)):
+    whole = isinstance(value, numbers.Integral) or (isinstance(value, numbers.Real) and math.isfinite(float(value))
+                                                    and float(value).is_integer())   # 800.0 from a JSON file
+    if isinstance(value, (bool, np.bool_)) or not whole:
         raise ValueError(f"Intrinsics.{name}: expected an integer >= 1, got {value!r}")
-    if isinstance(value, numbers.Integral):
-        v = int(value)
-    elif isinstance(value, numbers.Real) and math.isfinite(float(value)) and float(value).is_integer():
-        v = int(value)  # 800.0 from a JSON file
-    else:
-        raise ValueError(f"Intrinsics.{name}: expected an integer >= 1, got {value!r}")
+    v = int(value)
     if v < 1:
         raise ValueError(f"Intrinsics.{name}: must be >= 1, got {value!r}")
     return v
@@ -50,14 +45,12 @@ class Intrinsics:
 
     Args:
         fx, fy: focal lengths in pixels, positive and finite.
-        cx, cy: principal point in pixels (pixel-centre-at-``i + 0.5`` convention, see module docstring);
-            positive and finite, as the issue specifies (a principal point on or beyond the image's top/left
-            edge is refused: it is almost always a convention error such as a negated or 0-based value).
+        cx, cy: principal point in pixels (module convention), positive and finite (one on or beyond the
+            top/left edge is almost always a convention error).
         width, height: image size in pixels, integers ``>= 1``.
 
     Raises:
-        ValueError: naming the field, for non-positive / non-finite focal lengths, principal points or
-            sizes, and non-integer sizes.
+        ValueError: naming the field that breaks one of these rules.
 
     Example:
         >>> k = Intrinsics(500.0, 500.0, 256.0, 256.0, 512, 512)
@@ -77,12 +70,10 @@ class Intrinsics:
     height: int
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "fx", _positive_finite(self.fx, "fx"))
-        object.__setattr__(self, "fy", _positive_finite(self.fy, "fy"))
-        object.__setattr__(self, "cx", _positive_finite(self.cx, "cx"))
-        object.__setattr__(self, "cy", _positive_finite(self.cy, "cy"))
-        object.__setattr__(self, "width", _size(self.width, "width"))
-        object.__setattr__(self, "height", _size(self.height, "height"))
+        for name in ("fx", "fy", "cx", "cy"):
+            object.__setattr__(self, name, _positive_finite(getattr(self, name), name))
+        for name in ("width", "height"):
+            object.__setattr__(self, name, _size(getattr(self, name), name))
 
     @classmethod
     def from_fov(cls, fov_x_deg: float, width: int, height: int) -> "Intrinsics":
@@ -115,20 +106,12 @@ class Intrinsics:
         """``(height, width)``, the order of image array shapes."""
         return (self.height, self.width)
 
-    @property
-    def fov_x_deg(self) -> float:
-        """Horizontal field of view in degrees, ``2 atan(W / (2 fx))`` (assumes a centred principal point)."""
-        return math.degrees(2.0 * math.atan(0.5 * self.width / self.fx))
-
     def scaled(self, factor: float) -> "Intrinsics":
         """Intrinsics of the image resized by ``factor`` (``0.5`` halves it): ``K' = diag(s, s, 1) K``.
 
-        Exact in the pixel-centre-at-``i + 0.5`` convention (pixel edges map to pixel edges).  The new size
-        ``width * factor`` and ``height * factor`` must be whole numbers (to 1e-9); otherwise use
-        :meth:`resized`, which scales each axis by its own exact ratio.
-
         Raises:
-            ValueError: non-positive / non-finite factor, or a non-integer resulting size.
+            ValueError: a non-positive / non-finite factor, or a new size ``width * factor`` or ``height * factor``
+                that is not whole (to 1e-9): :meth:`resized` scales each axis by its own exact ratio.
         """
         s = _positive_finite(factor, "scaled(factor)")
         w, h = self.width * s, self.height * s

@@ -1,28 +1,16 @@
-"""Camera paths for fly-through renders of a fitted scene: an orbit around an object, a spiral in front of a
-forward-facing capture (NeRF's ``render_path_spiral``), both built from the input cameras alone.
-
-Convention: OpenCV camera frame (x right, y down, z forward), camera-to-world ``c2w (n, 4, 4)``, angles in
-degrees, lengths in world units.  Frames are evenly spaced and the last one does not repeat the first, so a
-path played in a loop has no doubled frame.
+"""Camera paths for fly-through renders, built from the input cameras alone: an orbit, a spiral.  Frames are
+evenly spaced and the last one does not repeat the first, so a path played in a loop has no doubled frame.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from ._util import float_dtype
-from .poses import POSE_ATOL, look_at, validate_rigid
+from .poses import look_at, pose_list
 from .spherical import _spherical_angles, closest_point_to_axes, default_up, pose_from_spherical
 from .spherical import spherical_from_pose  # noqa: F401  (the docstrings' examples use it)
 
 __all__ = ["orbit_path", "spiral_path", "spiral_focus_depth"]
-
-
-def _inputs(input_c2w, fn: str) -> np.ndarray:
-    arr = validate_rigid(input_c2w, atol=POSE_ATOL, name="input_c2w")
-    if arr.ndim != 3 or arr.shape[0] < 1:
-        raise ValueError(f"{fn}: input_c2w must be (m, 4, 4) or (m, 3, 4) with m >= 1, got {arr.shape}")
-    return arr
 
 
 def _count(n, fn: str) -> int:
@@ -35,11 +23,10 @@ def orbit_path(input_c2w, n: int, center=None, up=None, elevation: float | None 
                radius: float | None = None) -> np.ndarray:
     """``n`` cameras on a circle around ``center``, level with the horizon, each looking at ``center``.
 
-    The circle is the inputs' mean elevation and mean distance about ``center`` (measured with
-    :func:`spherical_from_pose` about ``up``) unless given; frame ``k`` sits at azimuth
-    ``az_0 + 360 k / n`` where ``az_0`` is the first input camera's azimuth, so frame 0 is beside input 0.
-    Each pose is :func:`pose_from_spherical` (no roll: image up points along ``up``).  At elevation +-90 every
-    frame sits at the pole and only turns about the view axis.
+    Frame ``k`` sits at azimuth ``az_0 + 360 k / n`` about ``up``, where ``az_0`` is the first input camera's
+    azimuth (:func:`spherical_from_pose`), so frame 0 is beside input 0.  Each pose is
+    :func:`pose_from_spherical` (no roll: image up points along ``up``); at elevation +-90 every frame sits at
+    the pole and only turns about the view axis.
 
     Args:
         input_c2w: ``(m, 4, 4)`` or ``(m, 3, 4)`` input camera-to-world poses, ``m >= 1``.
@@ -48,13 +35,10 @@ def orbit_path(input_c2w, n: int, center=None, up=None, elevation: float | None 
             the point they look at; needs two inputs whose optical axes are not parallel).
         up: ``(3,)`` orbit axis (default :func:`default_up` of the inputs).
         elevation: degrees above the plane through ``center`` normal to ``up`` (default: the inputs' mean).
-        radius: distance to ``center`` (default: the inputs' mean).
+        radius: distance to ``center`` (default: the inputs' mean distance).
 
     Returns:
-        ``(n, 4, 4)`` OpenCV camera-to-world, dtype of ``input_c2w`` (float32 stays float32).
-
-    Raises:
-        ValueError: bad shapes or values, or no ``center`` given and the inputs' axes are all parallel.
+        ``(n, 4, 4)`` OpenCV camera-to-world, dtype of ``input_c2w``.
 
     Example:
         >>> inputs = pose_from_spherical(np.array([10.0, 50.0]), np.array([20.0, 40.0]), 4.0)
@@ -64,7 +48,7 @@ def orbit_path(input_c2w, n: int, center=None, up=None, elevation: float | None 
         >>> np.round(spherical_from_pose(path)[1], 6).tolist()   # the inputs' mean elevation
         [30.0, 30.0, 30.0, 30.0]
     """
-    arr = _inputs(input_c2w, "orbit_path")
+    arr = pose_list(input_c2w, "input_c2w")
     count = _count(n, "orbit_path")
     a = arr.astype(np.float64)
     c = closest_point_to_axes(a) if center is None else np.asarray(center, dtype=np.float64)
@@ -74,7 +58,7 @@ def orbit_path(input_c2w, n: int, center=None, up=None, elevation: float | None 
     r_path = float(np.mean(r)) if radius is None else float(radius)
     azimuths = az[0] + 360.0 * np.arange(count, dtype=np.float64) / count
     poses = pose_from_spherical(azimuths, np.full(count, el_path), np.full(count, r_path), center=c, up=u)
-    return poses.astype(float_dtype(arr), copy=False)
+    return poses.astype(arr.dtype, copy=False)
 
 
 def spiral_focus_depth(near: float, far: float) -> float:
@@ -95,11 +79,10 @@ def spiral_path(input_c2w, n: int, focus_depth: float, radii=None, rotations: fl
                 z_rate: float = 0.5) -> np.ndarray:
     """``n`` cameras on a spiral around the inputs' mean pose, each looking at one focus point.
 
-    The mean pose sits at the inputs' mean centre, looking along their mean optical axis with image up along
-    their mean image-up axis.  Frame ``k`` (``theta = 2 pi rotations k / n``) sits at
-    ``radii * (cos theta, sin theta, sin(z_rate theta))`` in the mean camera's frame (right, down, forward)
-    and looks at the point ``focus_depth`` along the mean axis, image up toward the mean image-up axis: NeRF's
-    ``render_path_spiral`` written in the OpenCV convention.
+    The mean pose sits at the inputs' mean centre, looking along their mean optical axis, image up along their
+    mean image-up axis.  Frame ``k`` (``theta = 2 pi rotations k / n``) sits at ``radii * (cos theta,
+    sin theta, sin(z_rate theta))`` in the mean camera's frame (right, down, forward) and looks at the point
+    ``focus_depth`` along the mean axis, image up toward the mean image-up axis (NeRF's ``render_path_spiral``).
 
     Args:
         input_c2w: ``(m, 4, 4)`` or ``(m, 3, 4)`` input camera-to-world poses, ``m >= 1``.
@@ -122,7 +105,7 @@ def spiral_path(input_c2w, n: int, focus_depth: float, radii=None, rotations: fl
         >>> (np.round(path[:, :3, 3], 12) + 0.0).tolist()   # right, down, left, up of the mean camera
         [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]]
     """
-    arr = _inputs(input_c2w, "spiral_path")
+    arr = pose_list(input_c2w, "input_c2w")
     count = _count(n, "spiral_path")
     focus = float(focus_depth)
     if not (np.isfinite(focus) and focus > 0.0):
@@ -155,4 +138,4 @@ def spiral_path(input_c2w, n: int, focus_depth: float, radii=None, rotations: fl
     if (np.linalg.norm(eyes - target, axis=-1) <= 1e-9 * focus).any():   # relative: small scenes too
         raise ValueError("spiral_path: a frame reaches the focus point; use a larger focus_depth or smaller radii")
     poses = look_at(eyes, np.broadcast_to(target, eyes.shape), up=image_up)
-    return poses.astype(float_dtype(arr), copy=False)
+    return poses.astype(arr.dtype, copy=False)

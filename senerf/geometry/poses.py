@@ -1,34 +1,19 @@
 """Rigid camera poses: convention changes, validation, inversion, look-at.
 
 Convention:
-    Poses are camera-to-world ``c2w`` matrices ``(..., 4, 4)`` (or ``(..., 3, 4)`` where stated) in the
-    **OpenCV** camera convention: camera x right, y down, z forward.  ``c2w[..., :3, :3]`` holds the camera
-    axes as columns in world coordinates, ``c2w[..., :3, 3]`` the camera centre.  World-to-camera is
-    ``w2c = invert_rigid(c2w)``.  Output dtype follows ``c2w`` (float32 stays float32, else float64).
+    ``c2w[..., :3, :3]`` holds the OpenCV camera axes (x right, y down, z forward) as columns in world
+    coordinates, ``c2w[..., :3, 3]`` the camera centre; world-to-camera is ``w2c = invert_rigid(c2w)``.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from ._util import as_float, check_last, check_pose, pow2_scale, unit_and_norm
+from ._util import as_4x4, as_float, check_last, check_pose, pow2_scale, rigid_matrix, unit_and_norm
 
-__all__ = [
-    "opengl_to_opencv",
-    "opencv_to_opengl",
-    "is_rigid",
-    "validate_rigid",
-    "orthonormalize",
-    "invert_rigid",
-    "look_at",
-]
+__all__ = ["opengl_to_opencv", "opencv_to_opengl", "is_rigid", "validate_rigid", "invert_rigid", "look_at"]
 
 _FLIP = np.array([1.0, -1.0, -1.0, 1.0])
-
-
-def _flip_yz(c2w) -> np.ndarray:
-    arr = check_pose(c2w)
-    return arr * _FLIP.astype(arr.dtype)  # right-multiplying by diag(1,-1,-1,1) scales columns
 
 
 def opengl_to_opencv(c2w) -> np.ndarray:
@@ -47,12 +32,13 @@ def opengl_to_opencv(c2w) -> np.ndarray:
         >>> np.diag(c2w).tolist()
         [1.0, -1.0, -1.0, 1.0]
     """
-    return _flip_yz(c2w)
+    arr = check_pose(c2w)
+    return arr * _FLIP.astype(arr.dtype)  # right-multiplying by diag(1,-1,-1,1) scales columns
 
 
 def opencv_to_opengl(c2w) -> np.ndarray:
     """Inverse of :func:`opengl_to_opencv` (the same right-multiplication by ``diag(1, -1, -1, 1)``)."""
-    return _flip_yz(c2w)
+    return opengl_to_opencv(c2w)
 
 
 def _rigid_problems(c2w: np.ndarray, atol: float):
@@ -64,12 +50,8 @@ def _rigid_problems(c2w: np.ndarray, atol: float):
     gram = np.swapaxes(rot, -1, -2) @ rot
     non_ortho = np.abs(gram - np.eye(3)).max(axis=(-2, -1)) > atol
     neg_det = np.linalg.det(rot) < 0.0
-    if c2w.shape[-2] == 4:
-        bad_row = np.abs(safe[..., 3, :] - np.array([0.0, 0.0, 0.0, 1.0])).max(axis=-1) > atol
-    else:
-        bad_row = np.zeros(c2w.shape[:-2], dtype=bool)
-    nf = ~finite
-    return nf, non_ortho & finite, neg_det & finite, bad_row & finite
+    bad_row = np.abs(as_4x4(safe)[..., 3, :] - np.array([0.0, 0.0, 0.0, 1.0])).max(axis=-1) > atol
+    return ~finite, non_ortho & finite, neg_det & finite, bad_row & finite
 
 
 def is_rigid(c2w, atol: float = 1e-4) -> np.ndarray:
@@ -77,7 +59,6 @@ def is_rigid(c2w, atol: float = 1e-4) -> np.ndarray:
 
     Args:
         c2w: ``(..., 4, 4)`` or ``(..., 3, 4)``.
-        atol: tolerance on the entries of ``R^T R - I`` and of the last row.
 
     Returns:
         Bool array ``(...)``.
@@ -91,19 +72,14 @@ def is_rigid(c2w, atol: float = 1e-4) -> np.ndarray:
     return ~(nf | no | nd | br)
 
 
-#: Tolerance of the rigidity check made by every public function that uses a pose's rotation as one
-#: (projection, rays, reprojection, pseudo-view sampling): loose enough for float32 and exported poses,
-#: tight enough to refuse a scaled matrix or a reflection, which would otherwise give wrong numbers silently.
+#: Tolerance of the rigidity check of every public function that uses a pose's rotation as one: loose enough
+#: for float32 and exported poses, tight enough to refuse a scaled matrix or a reflection (silently wrong numbers).
 POSE_ATOL = 1e-3
 
 
 def validate_rigid(c2w, atol: float = 1e-4, name: str = "c2w") -> np.ndarray:
-    """Return ``c2w`` (as a float array) if every pose is rigid, else raise ``ValueError`` saying what is wrong.
-
-    The message names ``name``, the first bad index and the problem: ``non-finite entries``,
-    ``rotation not orthonormal (max |R^T R - I| = ...)``, ``det(R) < 0 (a reflection)`` or
-    ``last row is not [0, 0, 0, 1]``.  Slightly-off rotations can be repaired with :func:`orthonormalize`.
-    """
+    """Return ``c2w`` (as a float array) if every pose is rigid, else raise ``ValueError`` naming ``name``, the
+    first bad index and the problem."""
     arr = check_pose(c2w, name)
     nf, no, nd, br = _rigid_problems(arr, float(atol))
     for mask, what in (
@@ -123,39 +99,13 @@ def validate_rigid(c2w, atol: float = 1e-4, name: str = "c2w") -> np.ndarray:
     return arr
 
 
-def orthonormalize(c2w) -> np.ndarray:
-    """Replace each rotation by the nearest proper rotation (SVD, ``U diag(1, 1, det(U V^T)) V^T``).
-
-    Args:
-        c2w: ``(..., 4, 4)`` or ``(..., 3, 4)`` finite poses with slightly-off rotations.
-
-    Returns:
-        ``(..., 4, 4)`` with the same translation and last row ``0 0 0 1``, dtype of ``c2w``.
-
-    Raises:
-        ValueError: non-finite entries, or a rotation block of rank < 2.
-
-    Example:
-        >>> c2w = np.eye(4); c2w[0, 1] = 1e-3
-        >>> bool(is_rigid(orthonormalize(c2w), atol=1e-12))
-        True
-    """
-    arr = check_pose(c2w)
-    a64 = arr.astype(np.float64)
-    if not np.isfinite(a64).all():
-        raise ValueError("c2w: non-finite entries, cannot orthonormalize")
-    u, s, vt = np.linalg.svd(a64[..., :3, :3])
-    if (s[..., 1] <= 1e-12 * np.maximum(s[..., 0], 1e-300)).any():
-        raise ValueError("c2w: rotation block has rank < 2, cannot orthonormalize")
-    d = np.sign(np.linalg.det(u @ vt))
-    d = np.where(d == 0, 1.0, d)
-    u = u.copy()
-    u[..., :, 2] *= d[..., None]
-    out = np.zeros(arr.shape[:-2] + (4, 4))
-    out[..., :3, :3] = u @ vt
-    out[..., :3, 3] = a64[..., :3, 3]
-    out[..., 3, 3] = 1.0
-    return out.astype(arr.dtype, copy=False)
+def pose_list(c2w, name: str, rigid: bool = True) -> np.ndarray:
+    """``c2w`` as a float array ``(m, 4, 4)`` or ``(m, 3, 4)``, ``m >= 1``, every pose rigid to ``POSE_ATOL``
+    unless ``rigid`` is false; raises ``ValueError`` naming ``name``."""
+    arr = check_pose(c2w, name)
+    if arr.ndim != 3 or arr.shape[0] < 1:
+        raise ValueError(f"{name}: expected shape (m, 4, 4) or (m, 3, 4) with m >= 1, got {arr.shape}")
+    return validate_rigid(arr, atol=POSE_ATOL, name=name) if rigid else arr
 
 
 def invert_rigid(c2w) -> np.ndarray:
@@ -174,11 +124,7 @@ def invert_rigid(c2w) -> np.ndarray:
     """
     arr = check_pose(c2w)
     rot_t = np.swapaxes(arr[..., :3, :3], -1, -2)
-    out = np.zeros(arr.shape[:-2] + (4, 4), dtype=arr.dtype)
-    out[..., :3, :3] = rot_t
-    out[..., :3, 3] = -(rot_t @ arr[..., :3, 3:4])[..., 0]
-    out[..., 3, 3] = 1.0
-    return out
+    return rigid_matrix(rot_t, -(rot_t @ arr[..., :3, 3:4])[..., 0], arr.dtype)
 
 
 def look_at(eye, target, up=(0.0, 0.0, 1.0)) -> np.ndarray:
@@ -229,16 +175,8 @@ def look_at(eye, target, up=(0.0, 0.0, 1.0)) -> np.ndarray:
     sin = np.linalg.norm(x_raw, axis=-1)
     pole = sin < 1e-12
     if pole.any():
-        # Fallback: the world axis least parallel to z (smallest |z_i|).
         axis = np.eye(3)[np.argmin(np.abs(z), axis=-1)]
         x_raw = np.where(pole[..., None], np.cross(z, axis), x_raw)
     x, _ = unit_and_norm(x_raw)
     x, _ = unit_and_norm(x - np.sum(x * z, axis=-1, keepdims=True) * z)  # exact orthogonality to z
-    y = np.cross(z, x)
-    out = np.zeros(e.shape[:-1] + (4, 4))
-    out[..., :3, 0] = x
-    out[..., :3, 1] = y
-    out[..., :3, 2] = z
-    out[..., :3, 3] = e
-    out[..., 3, 3] = 1.0
-    return out.astype(dtype, copy=False)
+    return rigid_matrix(np.stack([x, np.cross(z, x), z], axis=-1), e, dtype)

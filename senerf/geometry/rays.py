@@ -1,18 +1,16 @@
 """Camera rays through pixels.
 
 Convention:
-    Pixel ``(i, j)`` has its centre at ``(i + 0.5, j + 0.5)``; the camera-frame direction through image
-    point ``(u, v)`` is ``((u - cx) / fx, (v - cy) / fy, 1)`` (OpenCV: x right, y down, z forward).
-    ``dirs`` are unit vectors in the world frame and ``z_per_dist = 1 / |((u - cx)/fx, (v - cy)/fy, 1)|``
-    is the camera-frame z gained per unit of distance along the ray: ``z_depth = ray_dist * z_per_dist``.
-    Computed in float64, returned in the dtype of ``c2w`` (pixel_rays) or ``uv`` (rays_from_pixels).
+    The camera-frame direction through image point ``(u, v)`` is ``d = ((u - cx) / fx, (v - cy) / fy, 1)``;
+    ``dirs`` are unit world vectors and ``z_per_dist = 1 / |d|`` is the camera-frame z gained per unit of
+    distance along the ray: ``z_depth = ray_dist * z_per_dist``.  Computed in float64.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from ._util import as_float, broadcast_batch, check_last, unit_and_norm
+from ._util import as_float, broadcast_batch, check_intrinsics, check_last, unit_and_norm
 from .intrinsics import Intrinsics
 from .poses import POSE_ATOL, validate_rigid
 
@@ -26,7 +24,7 @@ def pixel_centers(intrinsics: Intrinsics, dtype=np.float64) -> np.ndarray:
         >>> pixel_centers(Intrinsics(1.0, 1.0, 1.0, 0.5, 2, 1)).tolist()
         [[[0.5, 0.5], [1.5, 0.5]]]
     """
-    _check_intrinsics(intrinsics)
+    check_intrinsics(intrinsics)
     h, w = intrinsics.size
     out = np.empty((h, w, 2), dtype=dtype)
     out[..., 0] = np.arange(w) + 0.5
@@ -34,19 +32,18 @@ def pixel_centers(intrinsics: Intrinsics, dtype=np.float64) -> np.ndarray:
     return out
 
 
-def _check_intrinsics(intrinsics) -> None:
-    if not isinstance(intrinsics, Intrinsics):
-        raise ValueError(f"intrinsics: expected an Intrinsics, got {type(intrinsics).__name__}")
-
-
-def _camera_dirs(uv: np.ndarray, k: Intrinsics):
-    """Unit camera-frame directions ``(..., 3)`` and ``z_per_dist (...)`` for float64 ``uv (..., 2)``."""
+def _world_rays(uv: np.ndarray, k: Intrinsics, pose: np.ndarray, dtype):
+    """Rays through float64 ``uv (..., 2)`` of cameras ``pose (..., 4, 4)`` (float64, batch broadcast with
+    ``uv``'s): ``origins (..., 3)``, unit ``dirs (..., 3)``, ``z_per_dist (...)``, in ``dtype``."""
     d = np.empty(uv.shape[:-1] + (3,))
     d[..., 0] = (uv[..., 0] - k.cx) / k.fx
     d[..., 1] = (uv[..., 1] - k.cy) / k.fy
     d[..., 2] = 1.0
-    unit, norm = unit_and_norm(d)   # scaled: unit even where |d|^2 overflows (a focal length of 1e-160)
-    return unit, 1.0 / norm
+    dirs_cam, norm = unit_and_norm(d)   # scaled: unit even where |d|^2 overflows (a focal length of 1e-160)
+    dirs = np.einsum("...ij,...j->...i", pose[..., :3, :3], dirs_cam)
+    origins = np.broadcast_to(pose[..., :3, 3], dirs.shape)
+    zpd = np.broadcast_to(1.0 / norm, dirs.shape[:-1])
+    return origins.astype(dtype), dirs.astype(dtype), zpd.astype(dtype)
 
 
 def rays_from_pixels(uv, intrinsics: Intrinsics, c2w):
@@ -54,7 +51,6 @@ def rays_from_pixels(uv, intrinsics: Intrinsics, c2w):
 
     Args:
         uv: ``(..., 2)`` image coordinates (pixel centres at ``i + 0.5``), finite.
-        intrinsics: the camera's :class:`Intrinsics`.
         c2w: ``(..., 4, 4)`` or ``(..., 3, 4)`` OpenCV camera-to-world, batch broadcast against ``uv``'s.
 
     Returns:
@@ -70,19 +66,14 @@ def rays_from_pixels(uv, intrinsics: Intrinsics, c2w):
         >>> d.tolist(), float(zpd)
         ([0.0, 0.0, 1.0], 1.0)
     """
-    _check_intrinsics(intrinsics)
+    check_intrinsics(intrinsics)
     uv_a = as_float(uv, "uv")
     check_last(uv_a, (2,), "uv")
     if not np.isfinite(uv_a).all():
         raise ValueError("uv: image points must be finite")
     pose = validate_rigid(c2w, atol=POSE_ATOL).astype(np.float64)
     broadcast_batch(("uv", uv_a.shape[:-1]), ("c2w", pose.shape[:-2]))
-    dirs_cam, zpd = _camera_dirs(uv_a.astype(np.float64), intrinsics)
-    dirs = np.einsum("...ij,...j->...i", pose[..., :3, :3], dirs_cam)
-    origins = np.broadcast_to(pose[..., :3, 3], dirs.shape)
-    zpd = np.broadcast_to(zpd, dirs.shape[:-1])
-    dt = uv_a.dtype
-    return origins.astype(dt), dirs.astype(dt), zpd.astype(dt)
+    return _world_rays(uv_a.astype(np.float64), intrinsics, pose, uv_a.dtype)
 
 
 def pixel_rays(intrinsics: Intrinsics, c2w):
@@ -102,15 +93,7 @@ def pixel_rays(intrinsics: Intrinsics, c2w):
         >>> bool(np.allclose(np.linalg.norm(d, axis=-1), 1.0))
         True
     """
-    _check_intrinsics(intrinsics)
+    uv = pixel_centers(intrinsics)   # checks the intrinsics
     pose = validate_rigid(c2w, atol=POSE_ATOL)
-    dt = pose.dtype
-    p64 = pose.astype(np.float64)
-    dirs_cam, zpd = _camera_dirs(pixel_centers(intrinsics), intrinsics)  # (H, W, 3), (H, W)
-    rot = p64[..., None, None, :3, :3]  # (..., 1, 1, 3, 3)
-    dirs = np.einsum("...ij,...j->...i", rot, dirs_cam)
-    batch = pose.shape[:-2]
-    h, w = intrinsics.size
-    origins = np.broadcast_to(p64[..., None, None, :3, 3], batch + (h, w, 3))
-    zpd = np.broadcast_to(zpd, batch + (h, w))
-    return origins.astype(dt), dirs.astype(dt), zpd.astype(dt)
+    p64 = pose.astype(np.float64)[..., None, None, :, :]   # (..., 1, 1, 4, 4) against (H, W) pixels
+    return _world_rays(uv, intrinsics, p64, pose.dtype)

@@ -1,44 +1,24 @@
 """Spherical camera placement around a centre, optical-axis centres, and pseudo-view sampling.
 
 Convention:
-    Angles are degrees.  For a unit ``up`` the fixed right-handed basis ``(e1, e2, up)`` is
-    ``e1 = normalize(a - (a . up) up)`` with ``a = +x`` (or ``+y`` when ``|up_x| > 0.9``) and
-    ``e2 = up x e1``; for ``up = +z`` this is ``e1 = +x``, ``e2 = +y``.  The camera centre of
-    ``(azimuth, elevation, radius)`` is ``center + r (cos el cos az e1 + cos el sin az e2 + sin el up)``.
-    The OpenCV camera looks at ``center`` (z = -d with ``d`` the unit offset above), its x axis is the
-    azimuth tangent ``t_az = -sin az e1 + cos az e2`` and y = z x x = -(elevation tangent), so the image
-    up (-y) leans towards ``up``.  Built by composition (never via look-at), the rotation is proper at every
-    elevation in [-90, 90] including the poles.
+    For a unit ``up`` the fixed right-handed basis ``(e1, e2, up)`` is ``e1 = normalize(a - (a . up) up)``
+    with ``a = +x`` (or ``+y`` when ``|up_x| > 0.9``) and ``e2 = up x e1``; for ``up = +z`` this is
+    ``e1 = +x``, ``e2 = +y``.  The camera centre of ``(azimuth, elevation, radius)`` (degrees) is
+    ``center + r (cos el cos az e1 + cos el sin az e2 + sin el up)``.  The OpenCV camera looks at ``center``
+    (z = -d with ``d`` the unit offset above), its x axis is the azimuth tangent ``t_az = -sin az e1 +
+    cos az e2`` and y = z x x = -(elevation tangent), so the image up (-y) leans towards ``up``.  Built by
+    composition (never via look-at), the rotation is proper at every elevation in [-90, 90], poles included.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from ._util import as_4x4, as_float, check_last, check_pose, unit_and_norm
-from .poses import POSE_ATOL, validate_rigid
+from ._util import as_4x4, as_float, check_last, check_pose, rigid_matrix, unit_and_norm
+from .poses import POSE_ATOL, pose_list, validate_rigid
 
-__all__ = [
-    "pose_from_spherical",
-    "spherical_from_pose",
-    "closest_point_to_axes",
-    "sample_pseudo_views",
-    "default_up",
-    "spherical_basis",
-    "nearest_view_angles",
-]
-
-#: Largest |elevation| (degrees) that :func:`sample_pseudo_views` produces.
-MAX_PSEUDO_ELEVATION_DEG = 89.9
-
-
-def _unit(v: np.ndarray, name: str) -> np.ndarray:
-    if not np.isfinite(v).all():
-        raise ValueError(f"{name}: must be finite and non-zero")
-    unit, n = unit_and_norm(v)
-    if (n <= 0).any():
-        raise ValueError(f"{name}: must be finite and non-zero")
-    return unit
+__all__ = ["pose_from_spherical", "spherical_from_pose", "closest_point_to_axes", "sample_pseudo_views", "default_up",
+           "spherical_basis", "nearest_view_angles"]
 
 
 def spherical_basis(up=(0.0, 0.0, 1.0)) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -50,7 +30,10 @@ def spherical_basis(up=(0.0, 0.0, 1.0)) -> tuple[np.ndarray, np.ndarray, np.ndar
     """
     u = as_float(up, "up", np.float64)
     check_last(u, (3,), "up")
-    u = _unit(u, "up")
+    finite = np.isfinite(u).all(axis=-1)
+    u, norm = unit_and_norm(np.where(finite[..., None], u, 0.0))
+    if not (finite & (norm > 0)).all():
+        raise ValueError("up: must be finite and non-zero")
     a = np.where((np.abs(u[..., :1]) > 0.9), np.array([0.0, 1.0, 0.0]), np.array([1.0, 0.0, 0.0]))
     e1 = a - np.sum(a * u, axis=-1, keepdims=True) * u
     e1 = e1 / np.linalg.norm(e1, axis=-1, keepdims=True)
@@ -96,14 +79,7 @@ def pose_from_spherical(azimuth, elevation, radius, center=(0.0, 0.0, 0.0), up=(
     d = ce * ca * e1 + ce * sa * e2 + se * u  # unit offset from the centre
     t_az = -sa * e1 + ca * e2
     t_el = -se * ca * e1 - se * sa * e2 + ce * u
-    batch = np.broadcast_shapes(d.shape, c.shape)
-    out = np.zeros(batch[:-1] + (4, 4))
-    out[..., :3, 0] = t_az
-    out[..., :3, 1] = -t_el
-    out[..., :3, 2] = -d
-    out[..., :3, 3] = c + r[..., None] * d
-    out[..., 3, 3] = 1.0
-    return out.astype(dtype, copy=False)
+    return rigid_matrix(np.stack([t_az, -t_el, -d], axis=-1), c + r[..., None] * d, dtype)
 
 
 def spherical_from_pose(c2w, center=(0.0, 0.0, 0.0), up=(0.0, 0.0, 1.0)):
@@ -152,8 +128,6 @@ def _spherical_angles(a: np.ndarray, center, up, dtype) -> tuple:
     p1, p2 = np.sum(p_unit * e1, axis=-1), np.sum(p_unit * e2, axis=-1)
     el = np.degrees(np.arctan2(pu, np.hypot(p1, p2)))
     x = a[..., :3, 0]
-    # a camera put on the pole is off it by the rounding of its own dtype (~1e-7 |t| in float32), and there the
-    # position's azimuth is that rounding: the pole test scales with the coordinates' precision
     scale = np.maximum(np.abs(a[..., :3, 3]).max(axis=-1), np.abs(c).max(axis=-1))
     pole = np.hypot(p1, p2) <= np.maximum(1e-12, 8.0 * np.finfo(dtype).eps * scale / r)
     az = np.degrees(np.where(pole, np.arctan2(-np.sum(x * e1, axis=-1), np.sum(x * e2, axis=-1)),
@@ -173,8 +147,7 @@ def closest_point_to_axes(c2w) -> np.ndarray:
         ``(3,)`` world point, dtype of ``c2w``.
 
     Raises:
-        ValueError: when the axes are (nearly) all parallel (the system is rank deficient: condition
-            number above 1e10) or the input is non-finite.
+        ValueError: the axes are (nearly) all parallel (condition number above 1e10), or non-finite input.
 
     Example:
         >>> poses = np.stack([pose_from_spherical(a, 10.0, 4.0, center=(1, 2, 3)) for a in (0, 90, 200)])
@@ -183,8 +156,8 @@ def closest_point_to_axes(c2w) -> np.ndarray:
     """
     arr = validate_rigid(c2w, atol=POSE_ATOL, name="c2w")   # a scaled axis would weigh its camera differently
     a = arr.astype(np.float64).reshape((-1,) + arr.shape[-2:])
-    if a.shape[0] == 0 or not np.isfinite(a).all():
-        raise ValueError("closest_point_to_axes: need at least one finite pose")
+    if a.shape[0] == 0:
+        raise ValueError("closest_point_to_axes: need at least one pose")
     z = a[:, :3, 2] / np.linalg.norm(a[:, :3, 2], axis=-1, keepdims=True)
     o = a[:, :3, 3]
     proj = np.eye(3) - z[:, :, None] * z[:, None, :]
@@ -192,24 +165,19 @@ def closest_point_to_axes(c2w) -> np.ndarray:
     rhs = (proj @ o[:, :, None]).sum(axis=0)[:, 0]
     w = np.linalg.eigvalsh(lhs)
     if w[0] <= 1e-10 * w[-1]:
-        raise ValueError(
-            "closest_point_to_axes: the optical axes are all parallel, so no unique closest point exists; "
-            "pass the scene centre explicitly"
-        )
+        raise ValueError("closest_point_to_axes: the optical axes are all parallel, so no unique closest point "
+                         "exists; pass the scene centre explicitly")
     return np.linalg.solve(lhs, rhs).astype(arr.dtype)
 
 
 def default_up(input_c2w) -> np.ndarray:
     """The up axis :func:`sample_pseudo_views` measures azimuth and elevation about, from the inputs alone.
 
-    Cameras that share a horizon (no roll) have their x axes in one plane, whose normal is the world's up:
-    the eigenvector of the smallest eigenvalue of ``mean(x x^T)`` over the camera x axes (``c2w[:, :3, 0]``),
-    signed to agree with the image-up axes.  It is used when the x axes spread over that plane (the two
-    smaller eigenvalues differ by more than 0.01: two cameras at least ~12 degrees of azimuth apart); for
-    one camera, or cameras whose x axes are (nearly) parallel, as in a forward-facing capture, the normal is
-    not determined and the normalized mean of the image-up axes (``-c2w[:, :3, 1]``) is used.  A plain mean
-    of the image-up axes leans towards the side the cameras stand on (16.7 degrees off +z for lego's Extreme
-    views 0, 1, 51 at elevations ~30 degrees); the plane normal is +z there to 1e-8.
+    Cameras that share a horizon (no roll) have their x axes (``c2w[:, :3, 0]``) in one plane, whose normal is
+    the world's up: the eigenvector of the smallest eigenvalue of ``mean(x x^T)``, signed to agree with the
+    image-up axes, used when the two smaller eigenvalues differ by more than 0.01 (two cameras at least ~12
+    degrees of azimuth apart).  Otherwise (one camera, or parallel x axes as in a forward-facing capture) it is
+    the normalized mean of the image-up axes (``-c2w[:, :3, 1]``), which leans towards the cameras' side.
 
     Args:
         input_c2w: ``(m, 4, 4)`` or ``(m, 3, 4)`` camera-to-world poses (OpenCV), ``m >= 1``.
@@ -223,12 +191,7 @@ def default_up(input_c2w) -> np.ndarray:
         >>> np.round(default_up(inputs), 12).tolist()
         [0.0, 0.0, 1.0]
     """
-    a = np.asarray(input_c2w, dtype=np.float64)
-    if a.ndim != 3 or a.shape[1:] not in ((4, 4), (3, 4)) or a.shape[0] < 1:
-        raise ValueError(f"input_c2w: expected shape (m, 4, 4) with m >= 1, got {a.shape}")
-    if not np.isfinite(a[:, :3, :3]).all():
-        raise ValueError("default_up: input_c2w holds non-finite rotations")
-    validate_rigid(a, atol=POSE_ATOL, name="input_c2w")
+    a = pose_list(input_c2w, "input_c2w").astype(np.float64)
     mean_up = -a[:, :3, 1].mean(axis=0)
     norm = np.linalg.norm(mean_up)
     x = a[:, :3, 0]
@@ -245,18 +208,15 @@ def default_up(input_c2w) -> np.ndarray:
 def sample_pseudo_views(input_c2w, max_offset_deg, n, rng, center=None, up=None):
     """Random poses near the input views, for pseudo-view rendering.
 
-    Pseudo view ``k`` comes from input view ``source_index[k] = k % m`` (round robin over the ``m`` inputs,
-    so every input gets ``n // m`` or ``n // m + 1`` views).  Its azimuth is the source's azimuth plus an
-    offset drawn uniformly from ``[-max_offset, max_offset]``; its elevation is drawn uniformly from
-    ``[el - max_offset, el + max_offset]`` intersected with ``[-89.9, 89.9]``, or ``[-|el|, |el|]`` for a source
-    nearer a pole (so it never crosses one, and offset 0 returns a top view too);
-    its radius is the source's distance to ``center``.  The source camera is carried there rigidly, by the
-    rotation about ``center`` that takes the :func:`pose_from_spherical` pose at the source's angles to the
-    one at the new angles (an azimuth turn about ``up`` after an elevation turn about the source's azimuth
-    tangent): a camera keeps its roll and its aim relative to ``center``, offset 0 returns the inputs
-    exactly, and a source that looks at ``center`` with image up towards ``up`` gives exactly
-    :func:`pose_from_spherical` of the new angles.  Draws: first ``n`` azimuth uniforms, then ``n`` elevation
-    uniforms from ``rng``; the result is deterministic for a given generator state.
+    Pseudo view ``k`` comes from input ``source_index[k] = k % m`` (round robin over the ``m`` inputs).  Its
+    azimuth is the source's plus an offset drawn uniformly from ``[-max_offset, max_offset]``; its elevation
+    is drawn uniformly from ``[el - max_offset, el + max_offset]`` intersected with ``[-89.9, 89.9]``, or
+    ``[-|el|, |el|]`` for a source nearer a pole (so it never crosses one); its radius is the source's
+    distance to ``center``.  The source camera is carried there rigidly, by the rotation about ``center``
+    that takes the :func:`pose_from_spherical` pose at the source's angles to the one at the new angles: a
+    camera keeps its roll and its aim relative to ``center``, offset 0 returns the inputs exactly, and a
+    source that looks at ``center`` with image up towards ``up`` gives exactly :func:`pose_from_spherical`
+    of the new angles.  ``rng`` draws ``n`` azimuth uniforms, then ``n`` elevation uniforms.
 
     Args:
         input_c2w: ``(m, 4, 4)`` camera-to-world of the known views, ``m >= 1``.
@@ -270,8 +230,7 @@ def sample_pseudo_views(input_c2w, max_offset_deg, n, rng, center=None, up=None)
         ``(c2w (n, 4, 4), source_index (n,) int64)``; ``c2w`` has the dtype of ``input_c2w``.
 
     Raises:
-        ValueError: bad arguments (named), or an input camera centre at ``center`` (within rounding), as when
-            the inputs share one centre and ``center`` is left to :func:`closest_point_to_axes`.
+        ValueError: bad arguments (named), or an input camera centre at ``center`` (within rounding).
 
     Example:
         >>> inputs = pose_from_spherical(np.array([0.0, 120.0]), 20.0, 4.0)
@@ -282,9 +241,7 @@ def sample_pseudo_views(input_c2w, max_offset_deg, n, rng, center=None, up=None)
         >>> bool(np.allclose(same, inputs, atol=1e-12))
         True
     """
-    arr = validate_rigid(input_c2w, atol=POSE_ATOL, name="input_c2w")
-    if arr.ndim != 3 or arr.shape[0] < 1:
-        raise ValueError(f"input_c2w: expected shape (m, 4, 4) with m >= 1, got {arr.shape}")
+    arr = pose_list(input_c2w, "input_c2w")
     if not isinstance(rng, np.random.Generator):
         raise ValueError("rng: expected a numpy.random.Generator")
     off = float(max_offset_deg)
@@ -302,7 +259,6 @@ def sample_pseudo_views(input_c2w, max_offset_deg, n, rng, center=None, up=None)
     check_last(c, (3,), "center")
     c = c.reshape(3)
     u = default_up(a) if up is None else as_float(up, "up", np.float64).reshape(3)
-    # a camera centre within rounding of ``center`` has no direction from it (inputs sharing one centre)
     dist = np.linalg.norm(a[:, :3, 3] - c, axis=-1)
     tiny = dist <= 64.0 * np.finfo(arr.dtype).eps * max(np.abs(c).max(), np.abs(a[:, :3, 3]).max())
     if tiny.any():
@@ -314,20 +270,15 @@ def sample_pseudo_views(input_c2w, max_offset_deg, n, rng, center=None, up=None)
     src = np.arange(n, dtype=np.int64) % arr.shape[0]
     d_az = rng.uniform(-off, off, size=n)
     t_el = rng.uniform(0.0, 1.0, size=n)
-    # never past a pole, and never narrower than the source's own elevation (offset 0 gives a top view back)
-    lim = np.maximum(MAX_PSEUDO_ELEVATION_DEG, np.abs(el0[src]))
+    lim = np.maximum(89.9, np.abs(el0[src]))
     lo = np.clip(el0[src] - off, -lim, lim)
     hi = np.clip(el0[src] + off, -lim, lim)
     el = lo + t_el * (hi - lo)
-    # the rotation about c taking the canonical pose at the source's angles to the one at the new angles
     at_source = pose_from_spherical(az0[src], el0[src], r0[src], center=c, up=u).reshape(n, 4, 4)
     at_target = pose_from_spherical(az0[src] + d_az, el, r0[src], center=c, up=u).reshape(n, 4, 4)
     rot = at_target[:, :3, :3] @ np.swapaxes(at_source[:, :3, :3], 1, 2)  # (n, 3, 3)
-    c2w = np.zeros((n, 4, 4))
-    c2w[:, 3, 3] = 1.0
-    c2w[:, :3, :3] = rot @ a[src, :3, :3]
-    c2w[:, :3, 3] = c + np.einsum("nij,nj->ni", rot, a[src, :3, 3] - c)
-    return c2w.astype(arr.dtype, copy=False), src
+    t = c + np.einsum("nij,nj->ni", rot, a[src, :3, 3] - c)
+    return rigid_matrix(rot @ a[src, :3, :3], t, arr.dtype), src
 
 
 def nearest_view_angles(train_c2w: np.ndarray, test_c2w: np.ndarray,
@@ -347,10 +298,9 @@ def nearest_view_angles(train_c2w: np.ndarray, test_c2w: np.ndarray,
     Raises:
         ValueError: a non-finite pose, or a camera centre at ``center`` (its direction from it is undefined).
     """
-    train_c2w, test_c2w = np.asarray(train_c2w, np.float64), np.asarray(test_c2w, np.float64)
+    train_c2w = pose_list(train_c2w, "train_c2w", rigid=False).astype(np.float64)
+    test_c2w = pose_list(test_c2w, "test_c2w", rigid=False).astype(np.float64)
     for name, a in (("train_c2w", train_c2w), ("test_c2w", test_c2w)):
-        if a.ndim != 3 or a.shape[1:] not in ((4, 4), (3, 4)) or a.shape[0] == 0:
-            raise ValueError(f"{name} must be (k, 4, 4) or (k, 3, 4) with k >= 1, got {a.shape}")
         if center is None and np.isfinite(a).all():   # the optical axes are used: they must be unit
             validate_rigid(a, atol=POSE_ATOL, name=name)
     if center is None:

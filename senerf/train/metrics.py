@@ -55,7 +55,6 @@ def ssim(a, b, data_range: float = 1.0) -> float:
 
     Args:
         a, b: (H, W, 3) or (H, W) images, at least ``SSIM_MIN_SIDE`` (11) pixels per side.
-        data_range: the value range of the images.
     """
     from skimage.metrics import structural_similarity
 

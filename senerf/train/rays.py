@@ -1,8 +1,5 @@
-"""Precomputed training rays and their per-step random batches.
-
-Every ray of the training images (origin, unit direction, colour, alpha, near, far) is computed once,
-as float32 on the training device; a step draws ``batch_rays`` of them uniformly with replacement from a
-seeded ``torch.Generator`` (on the same device), so a run is reproducible and resumable.
+"""The rays of whole images as the field sees them (:func:`camera_rays`), and the precomputed training rays with
+their per-step random batches (:class:`RayBatchSource`).
 """
 
 from __future__ import annotations
@@ -12,9 +9,8 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
+from senerf.config import ModelConfig
 from senerf.errors import InputError
-
-from .config import ModelConfig
 
 __all__ = ["RayBatchSource", "ray_aabb_bounds", "camera_rays", "per_view_intrinsics", "ray_dist_to_z_depth"]
 
@@ -77,7 +73,6 @@ def camera_rays(intrinsics, c2w: np.ndarray, model: ModelConfig, device: str | t
             one focal length; :func:`senerf.data.load_llff` refuses scenes whose focals differ).
         c2w: (n, 4, 4) camera-to-world poses (OpenCV).
         model: gives ``ndc``/``ndc_near``, ``aabb`` and constant ``near``/``far``.
-        device: where the tensors go.
 
     Returns:
         dict of float32 tensors flattened over ``(n, H, W)``: ``origins (R, 3)``, ``dirs (R, 3)`` unit,
@@ -159,7 +154,8 @@ def ray_dist_to_z_depth(ray_dist: torch.Tensor, rays: dict[str, torch.Tensor], m
 
 @dataclass(eq=False)
 class RayBatchSource:
-    """All rays of the training images, sampled uniformly per step.
+    """All rays of the training images (computed once, float32 on the training device), sampled uniformly per step
+    from a seeded ``torch.Generator`` on the same device, so a run is reproducible and resumable.
 
     Attributes:
         origins, dirs: (R, 3) float32 (NDC when ``model.ndc``).
@@ -179,14 +175,11 @@ class RayBatchSource:
 
     def __post_init__(self) -> None:
         n = self.origins.shape[0]
-        for name in ("origins", "dirs", "rgb"):
+        for name, shape in (("origins", (n, 3)), ("dirs", (n, 3)), ("rgb", (n, 3)), ("alpha", (n,)), ("near", (n,)),
+                            ("far", (n,))):
             t = getattr(self, name)
-            if t.shape != (n, 3) or t.dtype != torch.float32:
-                raise ValueError(f"{name} must be ({n}, 3) float32, got {tuple(t.shape)} {t.dtype}")
-        for name in ("near", "far") + (("alpha",) if self.alpha is not None else ()):
-            t = getattr(self, name)
-            if t.shape != (n,) or t.dtype != torch.float32:
-                raise ValueError(f"{name} must be ({n},) float32, got {tuple(t.shape)} {t.dtype}")
+            if t is not None and (t.shape != shape or t.dtype != torch.float32):
+                raise ValueError(f"{name} must be {shape} float32, got {tuple(t.shape)} {t.dtype}")
         if n == 0:
             raise ValueError("no rays")
 
@@ -216,7 +209,6 @@ class RayBatchSource:
         """A uniform random batch (with replacement).
 
         Args:
-            batch: rays per batch.
             generator: a ``torch.Generator`` on :attr:`device`.
 
         Returns:

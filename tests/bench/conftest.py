@@ -1,7 +1,8 @@
-"""Fixtures for the harness tests: tiny scene folders and the fake fit command."""
+"""Fixtures for the harness tests: tiny scene folders, the fake fit command, finished results lines."""
 
 from __future__ import annotations
 
+import importlib.util
 import json
 import sys
 from pathlib import Path
@@ -11,6 +12,7 @@ import pytest
 from PIL import Image
 
 FAKE_FIT = Path(__file__).with_name("fake_fit.py")
+BENCHMARKS = Path(__file__).resolve().parents[2] / "benchmarks"
 
 
 def make_blender_scene(root: Path, name: str = "lego", side: int = 800) -> Path:
@@ -31,7 +33,7 @@ def blender_scene(tmp_path: Path) -> Path:
 
 @pytest.fixture()
 def blender_factory():
-    """``make_blender_scene(root, name="lego", side=800)`` for tests needing other image sizes."""
+    """``make_blender_scene(root, name="lego", side=800)`` for tests needing other names or image sizes."""
     return make_blender_scene
 
 
@@ -50,3 +52,29 @@ def llff_scene(tmp_path: Path) -> Path:
 def fake_fit_command() -> tuple[str, ...]:
     """Program prefix running the fake fit with this interpreter."""
     return (sys.executable, str(FAKE_FIT))
+
+
+@pytest.fixture()
+def ok_line():
+    """``ok_line(**fields)``: a finished results line as ``senerf-bench run`` writes it (a lego Extreme baseline at
+    20 dB unless ``fields`` say otherwise)."""
+    def make(**fields) -> dict:
+        line = {"run_key": "k", "attempt": "a", "status": "ok", "timestamp": "2026-01-01T00:00", "scene": "lego",
+                "protocol": "synthetic-extreme3@100", "resolution": [100, 100], "method": "baseline", "preset": "fast",
+                "seed": 0, "iterations": 0, "iteration": 0, "psnr": 20.0, "ssim": 0.5, "lpips": "unavailable",
+                "avg": "unavailable", "seconds": 1.0, "seconds_cumulative": 1.0, "run_seconds": 1.5,
+                "peak_memory_mib": 100.0, "commit": "c0ffee", "host": {"cpu": "X", "device": "cpu"},
+                "fit_command": ["senerf-fit"], "bench_command": ["senerf-bench", "run"]}
+        return {**line, **fields}
+    return make
+
+
+@pytest.fixture()
+def load_script():
+    """``load_script(name)``: the module ``benchmarks/<name>.py``, imported afresh."""
+    def load(name: str):
+        spec = importlib.util.spec_from_file_location(f"{name}_under_test", BENCHMARKS / f"{name}.py")
+        module = importlib.util.module_from_spec(spec)
+        spec.loader.exec_module(module)
+        return module
+    return load

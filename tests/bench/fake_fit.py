@@ -16,6 +16,9 @@ import sys
 import time
 from pathlib import Path
 
+#: The training views senerf-fit picks per --protocol (random8: any 8 of the train split).
+VIEWS = {"extreme": [0, 1, 51], "infonerf4": [26, 86, 2, 55], "random8": [3, 14, 15, 92, 65, 35, 89, 79]}
+
 
 def write_atomic(path: Path, data: dict) -> None:
     tmp = path.with_suffix(".tmp")
@@ -26,39 +29,31 @@ def write_atomic(path: Path, data: dict) -> None:
 def main(argv):
     p = argparse.ArgumentParser()
     p.add_argument("scene")
-    p.add_argument("--views", default=None)
-    p.add_argument("--n-views", type=int, default=None)
-    p.add_argument("--protocol", default=None)
-    p.add_argument("--downscale", type=int, default=1)
+    p.add_argument("--n-views", type=int, default=3)
+    p.add_argument("--protocol", default="extreme")
+    p.add_argument("--downscale", type=float, default=1)
     p.add_argument("--iterations", type=int, default=3)
-    p.add_argument("--features", default="vgg19")
-    p.add_argument("--threshold", default="adaptive")
-    p.add_argument("--no-density-distill", action="store_true")
-    p.add_argument("--no-prior", action="store_true")
-    p.add_argument("--preset", default="balanced")
-    p.add_argument("--steps", type=int, default=None)
-    p.add_argument("--device", default="cpu")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--out", required=True)
-    p.add_argument("--overwrite", action="store_true")
-    a = p.parse_args(argv)
+    a, _ = p.parse_known_args(argv)   # the methods' and presets' flags are accepted and ignored
     out = Path(a.out)
     out.mkdir(parents=True, exist_ok=True)
     if os.environ.get("FAKE_FIT_PIDFILE"):
         Path(os.environ["FAKE_FIT_PIDFILE"]).write_text(str(os.getpid()))
     crash = {int(s) for s in os.environ.get("FAKE_FIT_CRASH_SEEDS", "").split(",") if s}
-    views = [int(v) for v in a.views.split(",")] if a.views else [0, 1, 51]
-    side = 800 // a.downscale
-    metrics = {"senerf_version": "fake", "command": ["senerf-fit", *argv], "config": {"preset": a.preset},
-               "scene": Path(a.scene).name, "train_views": views, "test_views": [0, 1, 2],
-               "resolution": [side, side], "iterations": [], "seconds_total": 0.0}
+    llff = a.protocol == "llff"
+    views = list(range(1, 1 + a.n_views)) if llff else VIEWS[a.protocol]
+    size = [round(3024 / a.downscale), round(4032 / a.downscale)] if llff else [round(800 / a.downscale)] * 2
+    metrics = {"senerf_version": "fake", "command": ["senerf-fit", *argv], "config": {}, "train_views": views,
+               "test_views": [0, 1, 2], "resolution": size, "iterations": [], "seconds_total": 0.0}
     for k in range(a.iterations + 1):
         time.sleep(float(os.environ.get("FAKE_FIT_SLEEP", "0")))
         psnr = 20.0 + k + a.seed / 10.0
         metrics["iterations"].append({
             "iteration": k, "psnr": psnr, "ssim": 0.5 + 0.01 * k, "lpips": "unavailable", "avg": "unavailable",
             "reliable_fraction": None if k == 0 else 0.8, "seconds": float(os.environ.get("FAKE_FIT_SECONDS", "1.5")),
-            "per_view": {"psnr": [psnr - 1, psnr, psnr + 1], "ssim": [0.5, 0.5, 0.5]}})
+            "per_view": {"psnr": [psnr - 1, psnr, psnr + 1], "ssim": [0.5, 0.5, 0.5]},
+            "host": {"device": "cpu", "threads": 1, "cpu": "Fake CPU", "torch": "0.0"}})
         metrics["seconds_total"] += 1.5
         write_atomic(out / "metrics.json", metrics)
         if a.seed in crash:

@@ -2,8 +2,9 @@
 
 from __future__ import annotations
 
-import importlib.util
 import shlex
+import subprocess
+import sys
 from pathlib import Path
 
 import imageio.v3 as iio
@@ -11,15 +12,8 @@ import imageio.v3 as iio
 FRONTIER = Path(__file__).resolve().parents[2] / "benchmarks" / "frontier.py"
 
 
-def _load():
-    spec = importlib.util.spec_from_file_location("frontier_under_test", FRONTIER)
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
-
-
-def test_frontier_dry_run_and_fake_run(blender_scene, fake_fit_command, tmp_path, capsys):
-    frontier = _load()
+def test_frontier_dry_run_and_fake_run(blender_scene, fake_fit_command, tmp_path, capsys, load_script):
+    frontier = load_script("frontier")
     out = tmp_path / "fr"
     base = ["--scene", str(blender_scene), "--out", str(out), "--iterations", "2"]
     assert frontier.main([*base, "--dry-run"]) == 0
@@ -33,30 +27,20 @@ def test_frontier_dry_run_and_fake_run(blender_scene, fake_fit_command, tmp_path
     assert iio.imread(out / "frontier.png").ndim == 3
 
 
-def test_frontier_uses_each_presets_iterations_and_methods(blender_scene, tmp_path, capsys):
-    from senerf.train.config import PRESETS
+def test_frontier_uses_each_presets_iterations_and_methods(blender_scene, tmp_path, capsys, load_script):
+    from senerf.config import PRESETS
 
-    frontier = _load()
+    frontier = load_script("frontier")
     assert frontier.main(["--scene", str(blender_scene), "--out", str(tmp_path / "fr"), "--dry-run",
-                          "--methods", "senerf", "senerf-oracle"]) == 0
+                          "--methods", "senerf", "senerf-no-prior"]) == 0
     fits = [ln for ln in capsys.readouterr().out.splitlines() if ln.startswith("senerf-fit ")]
-    assert len(fits) == 2 * 2 and sum("--reliability oracle" in f for f in fits) == 2
+    assert len(fits) == 2 * 2 and sum("--no-prior" in f for f in fits) == 2
     for f in fits:
         preset = f.split("--preset ")[1].split()[0]
-        assert f"--iterations {PRESETS[preset]['iterations']} " in f
+        assert f"--iterations {PRESETS[preset].iterations} " in f
 
 
 def test_frontier_reports_bad_input_in_one_line(blender_scene, tmp_path):
-    # Before, a refused results line (or any InputError) ended the script with a traceback (so at ff8aed7).
-    import subprocess
-    import sys
-
-    out = tmp_path / "fr"
-    out.mkdir()
-    (out / "results.jsonl").write_text('{"schema": 99, "run_key": "k"}\n')
-    proc = subprocess.run([sys.executable, str(FRONTIER), "--scene", str(blender_scene), "--out", str(out),
-                           "--presets", "fast", "--seeds", "0", "--methods", "baseline"],
-                          capture_output=True, text=True, timeout=300)
-    assert proc.returncode == 2 and "Traceback" not in proc.stderr
-    assert proc.stderr.strip() == (f"frontier: error: {out / 'results.jsonl'}: schema: 99 is newer than this version "
-                                   "of senerf reads (schema 1); upgrade senerf to read it (line 1, run k)")
+    proc = subprocess.run([sys.executable, str(FRONTIER), "--scene", str(blender_scene), "--out", str(tmp_path / "fr"),
+                           "--methods", "nosuch"], capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 2 and proc.stderr.startswith("frontier: error: method: unknown method 'nosuch'")

@@ -116,28 +116,70 @@ def test_ngp_nerfstudio_split_lists(tmp_path, writers):
     assert scene.splits["test"].tolist() == [1]
 
 
-@pytest.mark.parametrize("extra, field, message", [
-    ({"train_filenames": []}, "train_filenames", "is empty: no frame to train on"),
-    ({"train_filenames": ["images/f_0.png"], "test_filenames": ["f_1.png"]}, "test_filenames",
-     "none of its 1 names is the file_path of a frame"),
-    ({"train_filenames": ["img/f_0.png", "img/f_2.png"]}, "train_filenames", "none of its 2 names"),
-    # given other split lists, a missing training list left an empty train split: senerf-fit's default and
-    # spread protocols then refused it as a --protocol / --views problem, and llff trained on the images of the
-    # other lists (so before 2026-11-23); nerfstudio refuses such a file
-    ({"test_filenames": ["images/f_1.png"], "val_filenames": []}, "train_filenames",
-     "missing beside val_filenames, test_filenames: no frame to train on"),
+def test_ngp_split_lists_match_file_paths_without_suffix(tmp_path, writers):
+    # A frame written "images/f_0" (no suffix, .png appended by the loader) listed as "images/f_0.png" is a train
+    # frame, and "./images/f_2" matches "images/f_2.png".
+    root = writers.ngp(tmp_path / "n", meta_extra={"train_filenames": ["images/f_0.png", "images/f_1.png"],
+                                                   "test_filenames": ["images/f_2.png"]})
+    meta = writers.read_json(root / "transforms.json")
+    meta["frames"][0]["file_path"] = "images/f_0"
+    meta["frames"][2]["file_path"] = "./images/f_2"
+    writers.write_json(root / "transforms.json", meta)
+    scene = load_scene(root)
+    assert scene.splits["train"].tolist() == [0, 1] and scene.splits["test"].tolist() == [2]
+
+
+@pytest.mark.parametrize("extra, field", [
+    ({"train_filenames": []}, "train_filenames"),
+    ({"train_filenames": ["images/f_0.png"], "test_filenames": ["f_1.png"]}, "test_filenames"),
+    ({"train_filenames": ["img/f_0.png", "img/f_2.png"]}, "train_filenames"),
+    ({"test_filenames": ["images/f_1.png"], "val_filenames": []}, "train_filenames"),   # no training list
+    ({"test_filenames": "images/f_0.png"}, "test_filenames"),
+    ({"train_filenames": [1, 2]}, "train_filenames"),
 ])
-def test_ngp_split_lists_that_select_no_frame_are_refused(tmp_path, writers, extra, field, message):
-    # an empty train list said "--n-views: must be in [1, 0]", and lists matching no frame were ignored,
-    # the scene falling back to another protocol without a word (so at 413b15a)
+def test_ngp_split_lists_that_select_no_frame_or_are_not_lists_of_names_are_refused(tmp_path, writers, extra, field):
     from senerf.errors import InputError
 
     root = writers.ngp(tmp_path / "n", meta_extra=extra)
-    with pytest.raises(InputError, match=message) as info:
+    with pytest.raises(InputError) as info:
         load_scene(root)
-    assert info.value.field == field and info.value.file.endswith("transforms.json")
+    assert info.value.field == field and info.value.file == str(root / "transforms.json")
     ok = writers.ngp(tmp_path / "ok", meta_extra={"train_filenames": ["images/f_0.png"], "val_filenames": []})
-    assert load_scene(ok).splits["val"].size == 0   # an empty val list is no val split, as before
+    assert load_scene(ok).splits["val"].size == 0   # an empty val list is no val split
+
+
+# --- non-square images: each intrinsic from its own axis ---------------------------------------------------
+
+def _ngp_nonsquare(root, writers, **meta):
+    """An ngp folder with 4 x 6 (H x W) images and only the given intrinsics at the top level."""
+    root = writers.ngp(root, image=lambda seed: writers.rgba(seed, 4, 6))
+    m = writers.read_json(root / "transforms.json")
+    for key in ("fl_x", "fl_y", "cx", "cy", "w", "h"):
+        m.pop(key)
+    m.update(meta)
+    writers.write_json(root / "transforms.json", m)
+    return root
+
+
+def test_ngp_camera_angles_use_their_own_axis_on_non_square_images(tmp_path, writers):
+    # W = 6, H = 4: fx = 0.5 * 6 / tan(atan(0.5)) = 6, fy = 0.5 * 4 / tan(atan(0.25)) = 8, c = (3, 2).
+    root = _ngp_nonsquare(tmp_path / "n", writers, camera_angle_x=2 * math.atan(0.5),
+                          camera_angle_y=2 * math.atan(0.25), w=6, h=4)
+    k = load_scene(root).intrinsics
+    assert (k.width, k.height) == (6, 4)
+    assert (k.fx, k.fy, k.cx, k.cy) == pytest.approx((6.0, 8.0, 3.0, 2.0))
+    # without camera_angle_y, fy = fx (square pixels): 6, not 0.5 * 4 / 0.5 = 4
+    k2 = load_scene(_ngp_nonsquare(tmp_path / "n2", writers, camera_angle_x=2 * math.atan(0.5))).intrinsics
+    assert (k2.fx, k2.fy) == pytest.approx((6.0, 6.0))
+
+
+def test_ngp_declared_w_h_checked_against_the_right_sides(tmp_path, writers):
+    from senerf.errors import InputError
+
+    assert load_scene(_ngp_nonsquare(tmp_path / "ok", writers, fl_x=5.0, w=6, h=4)).size == (4, 6)
+    with pytest.raises(InputError) as info:
+        load_scene(_ngp_nonsquare(tmp_path / "bad", writers, fl_x=5.0, w=4, h=6))
+    assert info.value.field in ("w", "h")
 
 
 # --- the real lego scene ---------------------------------------------------------------------------------

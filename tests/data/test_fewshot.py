@@ -36,11 +36,6 @@ def test_extreme_lego_indexes_train_split():
     assert test.tolist() == list(range(110, 130))
 
 
-def test_extreme_table_matches_reference():
-    assert EXTREME_VIEWS["lego"] == (0, 1, 51) and EXTREME_VIEWS["chair"] == (26, 31, 32)
-    assert EXTREME_VIEWS["mic"] == (35, 65, 82) and len(EXTREME_VIEWS) == 8
-
-
 def test_extreme_scene_name_is_case_insensitive():
     assert fewshot_split(blender_like("Ship"), "extreme")[0].tolist() == [46, 65, 76]
 
@@ -171,22 +166,76 @@ def test_llff_protocol_properties(n, frac):
 
 
 def test_a_protocols_own_views_or_count_past_the_train_split_name_the_protocol():
-    # with no flag given, lego's Extreme views on a 6-image train split blamed --views, and random8's
-    # default count blamed --n-views (so at 2e4108c)
+    # with no flag given, the protocol's own views or count are at fault, not --views or --n-views
     scene = blender_like(n_train=6, n_val=1, n_test=2)
-    with pytest.raises(InputError, match=r"the extreme protocol's views for 'lego' \(0, 1, 51\) index the train "
-                                         r"split, which has 6 images \(view 51 is past its end\)") as info:
-        fewshot_split(scene, "extreme")
-    assert info.value.field == "--protocol"
-    with pytest.raises(InputError, match="the infonerf4 protocol's views") as info:
-        fewshot_split(scene, "infonerf4")
-    assert info.value.field == "--protocol"
-    with pytest.raises(InputError, match="protocol 'random8' takes 8 views, and the scene has 6") as info:
-        fewshot_split(scene, "random8")
-    assert info.value.field == "--protocol"
+    for protocol in ("extreme", "infonerf4", "random8"):
+        with pytest.raises(InputError) as info:
+            fewshot_split(scene, protocol)
+        assert info.value.field == "--protocol", protocol
     with pytest.raises(InputError) as info:   # the user's own values still name the user's flags
         fewshot_split(scene, "extreme", views=[0, 7])
     assert info.value.field == "--views"
     with pytest.raises(InputError) as info:
         fewshot_split(scene, "random8", n_views=7)
     assert info.value.field == "--n-views"
+
+
+@pytest.mark.parametrize("n_views", [2.0, True, "2", np.float64(2.0)])
+def test_a_number_of_views_that_is_not_an_integer_is_refused(n_views):
+    scene = make_scene(10, {"train": np.arange(10)}, kind="forward_facing")
+    with pytest.raises(InputError) as info:
+        fewshot_split(scene, "llff", n_views=n_views)
+    assert info.value.field == "--n-views"
+    assert fewshot_split(scene, "llff", n_views=np.int64(2))[0].tolist() == [1, 9]   # rest 1..7, 9: its ends
+
+
+def test_protocol_all_refuses_an_empty_train_split():
+    with pytest.raises(InputError) as info:
+        fewshot_split(make_scene(3, {"test": [0, 1, 2]}), "all")
+    assert info.value.field == "--protocol"
+    train, test = fewshot_split(make_scene(3, {"train": [2], "test": [0, 1]}), "all")
+    assert (train.tolist(), test.tolist()) == ([2], [0, 1])
+
+
+def test_llff_holdout_of_a_single_image_is_refused():
+    with pytest.raises(InputError) as info:
+        fewshot_split(make_scene(1, {}, kind="forward_facing"), "llff")
+    assert info.value.field == "--protocol"
+    train, test = fewshot_split(make_scene(2, {}, kind="forward_facing"), "llff", n_views=1)   # 0 held out, 1 trains
+    assert (train.tolist(), test.tolist()) == ([1], [0])
+
+
+def test_views_covering_every_image_leave_nothing_to_test():
+    scene = make_scene(3, {"test": [0]}, kind="forward_facing")
+    with pytest.raises(InputError) as info:
+        fewshot_split(scene, "views", views=[0, 1, 2])
+    assert info.value.field == "--views"
+    assert fewshot_split(scene, "views", views=[0, 1])[1].tolist() == [2]   # the test view trains: the rest tests
+    assert fewshot_split(scene, "views", views=[1, 2])[1].tolist() == [0]
+
+
+#: REFERENCE.md section 5, copied by hand: "chair 26,31,32; drums 3,9,14; ficus 12,36,56; hotdog 31,33,48;
+#: lego 0,1,51; materials 47,63,73; ship 36,55,66; mic 35,65,82".
+_REFERENCE_EXTREME = {"chair": (26, 31, 32), "drums": (3, 9, 14), "ficus": (12, 36, 56), "hotdog": (31, 33, 48),
+                      "lego": (0, 1, 51), "materials": (47, 63, 73), "ship": (36, 55, 66), "mic": (35, 65, 82)}
+
+
+def test_extreme_protocol_uses_the_reference_views_for_every_scene():
+    # 100 train views after 10 val views, so index v -> 10 + v
+    assert {k: tuple(v) for k, v in EXTREME_VIEWS.items()} == _REFERENCE_EXTREME
+    for name, views in _REFERENCE_EXTREME.items():
+        assert fewshot_split(blender_like(name), "extreme")[0].tolist() == [10 + v for v in views], name
+
+
+@pytest.mark.parametrize("other", ["test", "val"])
+def test_views_index_the_train_split_when_only_one_other_split_exists(other):
+    # a nerfstudio file with train and test lists but no val list (or train and val only) is a split scene:
+    # train split = 3, 4, 5, so view 0 is image 3
+    scene = make_scene(6, {"train": [3, 4, 5], other: [0, 1, 2]})
+    if other == "test":
+        train, test = fewshot_split(scene, "views", views=[0, 2])
+        assert train.tolist() == [3, 5] and test.tolist() == [0, 1, 2]
+    else:
+        with pytest.raises(InputError) as info:   # indexes the train split, then needs a test split
+            fewshot_split(scene, "views", views=[0, 2])
+        assert info.value.field == "--protocol"

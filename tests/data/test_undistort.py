@@ -296,23 +296,23 @@ def test_instant_ngp_fisheye_flag(tmp_path, writers):
     assert scene.intrinsics == K_PHOTO
 
 
-@pytest.mark.parametrize("extra, frame_extra, field, words", [
-    ({"k1": "0.1x"}, {}, "k1", "expected a number"),
-    ({"k1": 10 ** 400}, {}, "k1", "out of range"),
-    ({"k2": float("inf")}, {}, "k2", "finite"),
-    ({}, {"p1": True}, r"frames\[0\]\.p1", "expected a number"),
-    ({"is_fisheye": "yes"}, {}, "is_fisheye", "true or false"),
-    ({"k4": 0.01}, {}, "k4", "r\\^8"),
-    ({"is_fisheye": True, "p2": 0.01}, {}, "p2", "no tangential term"),
-    ({"camera_model": "EQUIRECTANGULAR"}, {}, "camera_model", "not supported"),
-    ({}, {"camera_model": "fisheye624"}, r"frames\[0\]\.camera_model", "not supported"),
-    ({"camera_model": 5}, {}, "camera_model", "not supported"),
-    ({"camera_model": "FULL_OPENCV"}, {}, "camera_model", "not supported"),
-    ({"camera_model": "OPENCV", "is_fisheye": True}, {}, "is_fisheye", "camera_model is 'OPENCV'"),
-    ({"camera_model": "OPENCV_FISHEYE", "is_fisheye": False}, {}, "is_fisheye", "camera_model is"),
-    ({"cx": 250.0, "k1": -0.1}, {}, "k1", "cannot undistort f_0.png: .*principal point"),
+@pytest.mark.parametrize("extra, frame_extra, field", [
+    ({"k1": "0.1x"}, {}, "k1"),
+    ({"k1": 10 ** 400}, {}, "k1"),
+    ({"k2": float("inf")}, {}, "k2"),
+    ({}, {"p1": True}, "frames[0].p1"),
+    ({"is_fisheye": "yes"}, {}, "is_fisheye"),
+    ({"k4": 0.01}, {}, "k4"),
+    ({"is_fisheye": True, "p2": 0.01}, {}, "p2"),
+    ({"camera_model": "EQUIRECTANGULAR"}, {}, "camera_model"),
+    ({}, {"camera_model": "fisheye624"}, "frames[0].camera_model"),
+    ({"camera_model": 5}, {}, "camera_model"),
+    ({"camera_model": "FULL_OPENCV"}, {}, "camera_model"),
+    ({"camera_model": "OPENCV", "is_fisheye": True}, {}, "is_fisheye"),
+    ({"camera_model": "OPENCV_FISHEYE", "is_fisheye": False}, {}, "is_fisheye"),
+    ({"cx": 250.0, "k1": -0.1}, {}, "k1"),
 ])
-def test_bad_distortion_fields_name_file_and_field(tmp_path, writers, extra, frame_extra, field, words):
+def test_bad_distortion_fields_name_file_and_field(tmp_path, writers, extra, frame_extra, field):
     from senerf.data import load_scene
     from senerf.errors import InputError
     root = writers.ngp(tmp_path / "n", meta_extra=dict(_photo_meta(), **extra), image=_photo_writer(CASES["barrel"]))
@@ -320,8 +320,9 @@ def test_bad_distortion_fields_name_file_and_field(tmp_path, writers, extra, fra
         meta = writers.read_json(root / "transforms.json")
         meta["frames"][0].update(frame_extra)
         writers.write_json(root / "transforms.json", meta)
-    with pytest.raises(InputError, match=rf"transforms\.json: {field}: .*{words}") as info:
+    with pytest.raises(InputError) as info:
         load_scene(root)
+    assert (info.value.file, info.value.field) == (str(root / "transforms.json"), field)
     assert "\n" not in str(info.value)
 
 
@@ -457,15 +458,6 @@ def test_hemispherical_fisheye_with_unequal_focals_gets_the_80_degree_view():
     assert math.degrees(math.atan(corner)) == pytest.approx(80.0, abs=1e-9)
 
 
-@pytest.mark.parametrize("size", [(1, 7), (7, 1)])
-def test_a_fold_along_a_one_pixel_wide_image_is_found(size):
-    # k1 = -0.9: r_d = r (1 - 0.9 r^2) at r = 0.3, 0.6, 0.9 is 0.276, 0.406, 0.244: the last pixel folds back
-    h, w = size
-    k = Intrinsics(3.0 / 0.9, 3.0 / 0.9, w / 2, h / 2, w, h)
-    with pytest.raises(DistortionError, match="folds"):
-        undistortion_maps(k, Distortion("opencv", (-0.9, 0.0, 0.0, 0.0, 0.0)), k)
-
-
 def test_a_fold_between_the_last_two_rows_of_a_513_row_image_is_found():
     # rows are checked in chunks of 512 cells; the last pair of rows of a 513-row image is a chunk's edge.
     # k1 = -0.9 folds at r = 1/sqrt(2.7) = 486.9 px at f = 800: between rows 511 (511.5) and 512 (512.5) with cy 24.6
@@ -477,9 +469,12 @@ def test_a_fold_between_the_last_two_rows_of_a_513_row_image_is_found():
         undistortion_maps(k, d, k)
 
 
-def test_undistortion_maps_refuse_a_pinhole_of_another_size():
-    with pytest.raises(ValueError, match="sizes differ"):
-        undistortion_maps(K_PHOTO, CASES["barrel"], Intrinsics(160.0, 150.0, 100.3, 79.6, 100, 80))
+def test_maps_and_coverage_refuse_a_pinhole_of_another_size():
+    other = Intrinsics(160.0, 150.0, 100.3, 79.6, 100, 80)
+    with pytest.raises(ValueError):
+        undistortion_maps(K_PHOTO, CASES["barrel"], other)
+    with pytest.raises(ValueError):
+        photo_coverage(K_PHOTO, CASES["barrel"], other)
 
 
 def test_fully_transparent_pixels_come_out_black_not_nan():
@@ -495,18 +490,19 @@ def test_fully_transparent_pixels_come_out_black_not_nan():
     np.testing.assert_allclose(out[..., :3][out[..., 3] > 0], 0.7, rtol=1e-5)
 
 
-@pytest.mark.parametrize("extra, field, words", [
-    ({"is_fisheye": 1}, "is_fisheye", "true or false"),  # JSON's 1 is not true
-    ({"camera_model": "OPENCV_FISHEYE", "is_fisheye": True, "cx": 250.0}, "camera_model", "principal point"),
-    ({"camera_model": "OPENCV_FISHEYE", "k2": 0.01, "cx": 250.0}, "k2", "principal point"),
-    ({"k1": 0.0, "k2": -0.1, "p2": 0.01, "cx": 250.0}, "k2", "principal point"),  # the first non-zero one
+@pytest.mark.parametrize("extra, field", [
+    ({"is_fisheye": 1}, "is_fisheye"),  # JSON's 1 is not true
+    ({"camera_model": "OPENCV_FISHEYE", "is_fisheye": True, "cx": 250.0}, "camera_model"),
+    ({"camera_model": "OPENCV_FISHEYE", "k2": 0.01, "cx": 250.0}, "k2"),
+    ({"k1": 0.0, "k2": -0.1, "p2": 0.01, "cx": 250.0}, "k2"),  # the first non-zero one
 ])
-def test_distortion_errors_name_the_field_that_set_it(tmp_path, writers, extra, field, words):
+def test_distortion_errors_name_the_field_that_set_it(tmp_path, writers, extra, field):
     from senerf.data import load_scene
     from senerf.errors import InputError
     root = writers.ngp(tmp_path / "n", meta_extra=dict(_photo_meta(), **extra), image=_photo_writer(CASES["barrel"]))
-    with pytest.raises(InputError, match=rf"transforms\.json: {field}: .*{words}"):
+    with pytest.raises(InputError) as info:
         load_scene(root)
+    assert (info.value.file, info.value.field) == (str(root / "transforms.json"), field)
 
 
 def test_file_level_null_counts_as_absent(tmp_path, writers):
@@ -583,10 +579,9 @@ def test_a_lens_model_folding_inside_the_photo_warns_once_naming_file_and_field(
     lines = _coverage_warnings(record)
     assert len(lines) == 1, lines
     assert lines[0].startswith(f"{root / 'transforms.json'}: undistorting f_0.png keeps 34% of the photo (k1: opencv")
-    assert "folds back inside the photo, and the view stops at the fold" in lines[0]
 
 
-def test_a_circular_fisheye_warns_that_it_is_too_wide(tmp_path, writers):
+def test_a_circular_fisheye_warns_that_its_pinhole_view_keeps_little_of_it(tmp_path, writers):
     from senerf.data import load_scene
     d = Distortion("fisheye", (0.0, 0.0, 0.0, 0.0))
     f = 45.0 / (math.pi / 2.0)   # an equidistant 180-degree circle inscribed in a 120x90 photo's short side
@@ -598,19 +593,7 @@ def test_a_circular_fisheye_warns_that_it_is_too_wide(tmp_path, writers):
     with pytest.warns(UserWarning) as record:
         load_scene(root)
     (line,) = _coverage_warnings(record)
-    assert "keeps 44% of the photo" in line and "wider than a pinhole view can hold" in line and "folds" not in line
-
-
-def test_why_a_view_is_cropped_names_the_cap_the_fold_or_the_border():
-    from senerf.data.undistort import _why_cropped
-    fold = Distortion("opencv", (-0.9, 0.0, 0.0, 0.0, 0.0))
-    assert "folds back" in _why_cropped(K_PHOTO, fold, undistorted_intrinsics(K_PHOTO, fold))
-    strong_pincushion = Distortion("opencv", (2.0, 0.0, 0.0, 0.0, 0.0))   # no fold, no cap: the border stops it
-    assert "that narrow" in _why_cropped(K_PHOTO, strong_pincushion,
-                                         undistorted_intrinsics(K_PHOTO, strong_pincushion))
-    k = Intrinsics(30.0, 30.0, 50.0, 50.0, 100, 100)
-    eq = Distortion("fisheye", (0.0, 0.0, 0.0, 0.0))
-    assert "wider than a pinhole view" in _why_cropped(k, eq, undistorted_intrinsics(k, eq))
+    assert line.startswith(f"{root / 'transforms.json'}: undistorting f_0.png keeps 44% of the photo (camera_model:")
 
 
 @pytest.mark.parametrize("name", sorted(CASES))

@@ -21,7 +21,7 @@ def test_fit_config_is_what_choose_model_picks_for_lego_at_100():
     from senerf.data import load_scene
     from senerf.data.fewshot import fewshot_split
     from senerf.fields import KPlanesField
-    from senerf.train.config import choose_model
+    from senerf.train.model import choose_model
 
     scene = load_scene(LEGO, downscale=4)
     for protocol in ("extreme", "all"):

@@ -1,10 +1,13 @@
+"""Tests of senerf/fields/encoding.py: spherical harmonics, positional encoding and its annealing weights."""
+
 import math
 
 import numpy as np
 import pytest
 import torch
 
-from senerf.fields import NeRFField, anneal_weights, positional_encoding, sh_encoding
+from senerf.fields import anneal_weights, positional_encoding, sh_encoding
+from senerf.fields.encoding import sh_encoding_reference
 
 
 def test_sh_orthonormal_by_exact_quadrature():
@@ -55,16 +58,35 @@ def test_positional_encoding_values_and_band_weights():
     np.testing.assert_allclose(enc_w[0, :6].numpy(), expect[:6], atol=1e-12)
 
 
-def test_nerf_field_progress_schedule():
-    f = NeRFField(aabb=[[-1] * 3, [1] * 3], n_freqs=8, hidden=16, n_layers=2)
-    assert torch.equal(f.set_progress(0, 400), torch.zeros(8))            # eta = 0
-    assert torch.equal(f.set_progress(100, 400), torch.ones(8))           # step = N = total / 4: eta = m
-    w = f.set_progress(25, 400)                                            # eta = 8 * 25 / 100 = 2
-    np.testing.assert_allclose(w.numpy(), [1, 1, 0, 0, 0, 0, 0, 0], atol=1e-7)
-    g = NeRFField(n_freqs=4, hidden=16, n_layers=2, anneal_steps=10)
-    np.testing.assert_allclose(g.set_progress(5).numpy(), [1, 1, 0, 0], atol=1e-7)
-    with pytest.raises(ValueError):
-        NeRFField(n_freqs=4, hidden=8, n_layers=2).set_progress(3)
+@pytest.mark.parametrize("degree", [0, 5, -1])
+def test_sh_degree_outside_1_to_4_is_refused(degree):
+    # degree 5 would give 25 columns of which 9 are never computed
+    with pytest.raises(ValueError, match=f"degree: expected 1..4, got {degree}"):
+        sh_encoding_reference(torch.zeros(2, 3), degree)
+    assert [sh_encoding_reference(torch.zeros(2, 3), d).shape[1] for d in (1, 2, 3, 4)] == [1, 4, 9, 16]
+
+
+@pytest.mark.parametrize("shape", [(5, 2), (5, 4), (5,), (1, 5, 3)])
+@pytest.mark.parametrize("encode", [sh_encoding, sh_encoding_reference])
+def test_sh_encoding_refuses_directions_that_are_not_n_by_3(encode, shape):
+    with pytest.raises(ValueError, match=r"dirs: expected shape \(N, 3\)"):
+        encode(torch.zeros(shape), 4)
+    # +z: Y_00 = 1 / (2 sqrt(pi)) = 0.28209..., Y_1,0 = sqrt(3 / (4 pi)) z = 0.48860...
+    out = encode(torch.tensor([[0.0, 0.0, 1.0]]), 2)
+    torch.testing.assert_close(out, torch.tensor([[0.28209479177387814, 0.0, 0.48860251190291987, 0.0]]))
+
+
+def test_positional_encoding_refuses_unbatched_input_and_misshapen_band_weights():
+    with pytest.raises(ValueError, match=r"x: expected shape \(N, D\)"):
+        positional_encoding(torch.zeros(3), 2)
+    for weights in (torch.ones(3), torch.ones(1, 2)):
+        with pytest.raises(ValueError, match=r"weights: expected shape \(2,\)"):
+            positional_encoding(torch.zeros(1, 1), 2, weights=weights)
+    # by hand, x = 0.25, bands pi x = pi/4 and 2 pi x = pi/2 weighted 1 and 0.5:
+    # [x, sin(pi/4), cos(pi/4), 0.5 sin(pi/2), 0.5 cos(pi/2)] = [0.25, 0.7071, 0.7071, 0.5, 0]
+    out = positional_encoding(torch.tensor([[0.25]], dtype=torch.float64), 2, weights=torch.tensor([1.0, 0.5]))
+    r = 0.5 ** 0.5
+    torch.testing.assert_close(out, torch.tensor([[0.25, r, r, 0.5, 0.0]], dtype=torch.float64))
 
 
 @pytest.mark.parametrize("dtype", [torch.float32, torch.float64])

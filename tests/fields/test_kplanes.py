@@ -1,8 +1,13 @@
+"""Tests of senerf/fields/kplanes.py: the K-Planes field against grid_sample, its backends and regulariser."""
+
+import math
+
 import numpy as np
 import pytest
 import torch
+import torch.nn.functional as F
 
-from senerf.fields import KPlanesField, NeRFField, RadianceField
+from senerf.fields import KPlanesField, RadianceField
 from senerf.fields.ckernel import fused_plane_features, load_kernel
 from senerf.fields.interp import plane_interp, plane_interp_reference, plane_layout
 
@@ -145,16 +150,6 @@ def test_plane_tv_regularizer():
     assert f.table.grad.abs().sum() > 0
 
 
-def test_nerf_field_contract():
-    f = NeRFField(aabb=[[-1] * 3, [1] * 3], n_freqs=4, hidden=32, n_layers=3, generator=torch.Generator().manual_seed(0))
-    assert isinstance(f, RadianceField)
-    pts = torch.tensor([[0.1, 0.2, 0.3], [2.0, 0.0, 0.0]])
-    sigma, rgb = f(pts, torch.tensor([[0.0, 0.0, 1.0], [1.0, 0.0, 0.0]]))
-    assert sigma.shape == (2,) and rgb.shape == (2, 3) and sigma[1] == 0 and sigma[0] > 0
-    torch.testing.assert_close(f.density(pts), sigma)
-    assert float(f.regularizer().detach()) == 0.0
-
-
 def test_internal_chunking_is_invisible():
     gen = torch.Generator().manual_seed(5)
     xyz = torch.rand(300, 3, generator=gen) * 2 - 1
@@ -197,19 +192,6 @@ def test_training_steps_reduce_photometric_loss():
         opt.step()
         losses.append(float(loss.detach()))
     assert losses[-1] < 0.5 * losses[0]
-
-
-def test_relu_mlp_equals_sequential():
-    from senerf.fields.mlp import relu_mlp
-    gen = torch.Generator().manual_seed(3)
-    net = torch.nn.Sequential(torch.nn.Linear(5, 7), torch.nn.ReLU(), torch.nn.Linear(7, 6), torch.nn.ReLU(),
-                              torch.nn.Linear(6, 2)).double()
-    x = torch.randn(40, 5, generator=gen, dtype=torch.float64, requires_grad=True)
-    a, b = relu_mlp(x, net), net(x)
-    torch.testing.assert_close(a, b, rtol=0, atol=1e-14)
-    g = torch.randn(a.shape, generator=gen, dtype=torch.float64)
-    for p, q in zip(torch.autograd.grad(a, [x, *net.parameters()], g), torch.autograd.grad(b, [x, *net.parameters()], g)):
-        torch.testing.assert_close(p, q, rtol=1e-12, atol=1e-13)
 
 
 def test_falls_back_to_gather_without_compiler(monkeypatch):
@@ -270,3 +252,69 @@ def test_an_interrupted_kernel_call_keeps_its_tensors_alive_until_its_workers_en
     out = []
     _run([lambda: out.append(0), lambda: out.append(1), lambda: out.append(2)], keep=())   # the ordinary case
     assert sorted(out) == [0, 1, 2]
+
+
+def _grid_sample_features(field, u):
+    """Hadamard product over the 3 planes of each scale, by torch.nn.functional.grid_sample directly."""
+    pairs = ((0, 1), (0, 2), (1, 2))
+    feats = []
+    for s in range(len(field.resolutions)):
+        prod = 1.0
+        for p, (a, b) in enumerate(pairs):
+            plane = field.plane(s, p).permute(2, 0, 1)[None]               # (1, F, r(b), r(a))
+            grid = u[:, [a, b]].view(1, -1, 1, 2)
+            v = F.grid_sample(plane, grid, mode="bilinear", padding_mode="border", align_corners=True)
+            prod = prod * v[0, :, :, 0].t()                               # (N, F)
+        feats.append(prod)
+    return torch.cat(feats, dim=1)
+
+
+@pytest.mark.parametrize("backend", ["auto", "gather", "grid_sample"])
+def test_kplanes_features_are_the_product_of_the_three_planes(backend):
+    # the Hadamard product (not the sum) of the plane features, in every backend
+    f = KPlanesField([[-1.0, -2.0, -1.0], [1.0, 2.0, 3.0]], resolution=6, n_features=4, multires=(1, 2),
+                     generator=torch.Generator().manual_seed(0), backend=backend)
+    gen = torch.Generator().manual_seed(1)
+    xyz = torch.rand(200, 3, generator=gen) * torch.tensor([2.0, 4.0, 4.0]) + torch.tensor([-1.0, -2.0, -1.0])
+    u = (xyz - torch.tensor([-1.0, -2.0, -1.0])) * (2.0 / torch.tensor([2.0, 4.0, 4.0])) - 1.0
+    with torch.no_grad():
+        feat, inside = f.features(xyz)
+        ref = _grid_sample_features(f, u)
+    assert inside.all()
+    torch.testing.assert_close(feat, ref, rtol=1e-5, atol=1e-6)
+
+
+def test_kplanes_tv_counts_both_plane_axes():
+    # Table constant 0.3 except plane (scale 0, xy) = 0.3 + 0.1 a (a ramp along its columns, 6x6, 4 features):
+    # along the ramp every difference is 0.1 -> mean 0.01; across it 0 -> 0.01 in all, / 2 scales = 0.005.
+    # The same ramp along the rows (b) must give the same value.
+    f = KPlanesField([[-1.0] * 3, [1.0] * 3], resolution=6, n_features=4, multires=(1, 2),
+                     generator=torch.Generator().manual_seed(0))
+    ramp = 0.1 * torch.arange(6.0)
+    for view in (ramp.view(1, 6, 1), ramp.view(6, 1, 1)):
+        with torch.no_grad():
+            f.table.fill_(0.3)
+            f.plane(0, 0).add_(view)
+        np.testing.assert_allclose(float(f.regularizer().detach()), 0.005, rtol=1e-5)
+
+
+def test_kplanes_density_shift_multiplies_density_by_exp_shift():
+    # sigma = exp(raw + shift) (raw < 15 here), so two fields with the same seed differ by the factor
+    # exp(0.7) = 2.0137527 inside the box.
+    xyz = torch.rand(50, 3, generator=torch.Generator().manual_seed(2)) * 1.8 - 0.9
+    sig = [KPlanesField([[-1.0] * 3, [1.0] * 3], resolution=6, n_features=4, density_shift=s,
+                        generator=torch.Generator().manual_seed(0)).density(xyz).detach() for s in (0.0, 0.7)]
+    torch.testing.assert_close(sig[1] / sig[0], torch.full((50,), math.exp(0.7)), rtol=1e-5, atol=0)
+
+
+@pytest.mark.parametrize("kw", [dict(backend="cuda"), dict(backend="Gather"), dict(chunk=0), dict(chunk=-5)])
+def test_kplanes_refuses_unknown_backends_and_empty_chunks(kw):
+    # an unknown backend would run the gather path, chunk 0 would fail at the first query
+    tiny = dict(resolution=2, n_features=2, multires=(1,), hidden=4, geo_features=2)
+    with pytest.raises(ValueError, match=next(iter(kw))):
+        KPlanesField([[-1.0] * 3, [1.0] * 3], **tiny, **kw)
+    field = KPlanesField([[-1.0] * 3, [1.0] * 3], **tiny, chunk=1, backend="grid_sample")   # one point a chunk
+    sigma, rgb = field(torch.zeros(3, 3), torch.tensor([[0.0, 0.0, 1.0]] * 3))
+    assert sigma.shape == (3,) and rgb.shape == (3, 3)
+    torch.testing.assert_close(sigma, KPlanesField([[-1.0] * 3, [1.0] * 3], **tiny, backend="gather").density(
+        torch.zeros(3, 3)))

@@ -1,8 +1,11 @@
+"""Tests of senerf/fields/occupancy.py: cells, decay, dilation and axis order, by hand."""
+
+import pytest
 import torch
 
 from senerf.fields import OccupancyGrid
 
-from ._fields_helpers import BallField
+from .analytic_fields import BallField
 
 
 def test_fresh_grid_full_outside_never():
@@ -57,22 +60,19 @@ class _RecordingField:
         return torch.zeros(xyz.shape[0])
 
 
-def test_jittered_update_samples_stay_inside_their_cells():
-    # Catches: a jitter wider than one cell (e.g. 4x), or one scaled by the wrong axis' cell size, in update
-    # with a generator.  update evaluates one point per cell in cell_centers' order, so each recorded point
-    # must lie within half a cell of its cell's centre on every axis; on a box with cells of 0.2 x 0.1 x 0.4
-    # (cube [0, 2] x [0, 1] x [0, 4], 10 per side) the 1000 uniform offsets must also span most of that
-    # half-width (a missing jitter fails too).
+def test_update_evaluates_the_density_at_the_cell_centres_in_chunks():
+    # Catches: points other than the cell centres (or in another order), or a chunk dropped or repeated.
     g = OccupancyGrid([[0.0, 0.0, 0.0], [2.0, 1.0, 4.0]], 10, dilate=0)
     field = _RecordingField()
-    g.update(field, generator=torch.Generator().manual_seed(0), chunk=300)
-    pts = torch.cat(field.points)
-    assert pts.shape == (1000, 3)
-    half = torch.tensor([0.1, 0.05, 0.2])
-    off = pts - g.cell_centers()
-    assert (off.abs() <= half * (1 + 1e-5)).all()
-    assert (off.min(dim=0).values < -0.9 * half).all() and (off.max(dim=0).values > 0.9 * half).all()
-    # without a generator: exactly the centres
-    field = _RecordingField()
-    g.update(field)
+    g.update(field, chunk=300)
+    assert [p.shape[0] for p in field.points] == [300, 300, 300, 100]
     assert torch.equal(torch.cat(field.points), g.cell_centers())
+    assert torch.allclose(g.cell_centers()[[0, 999]], torch.tensor([[0.1, 0.05, 0.2], [1.9, 0.95, 3.8]]))
+
+
+def test_occupancy_grid_needs_at_least_one_cell():
+    for bad in (0, -2):
+        with pytest.raises(ValueError, match="resolution: expected >= 1"):
+            OccupancyGrid([[-1.0] * 3, [1.0] * 3], resolution=bad)
+    grid = OccupancyGrid([[-1.0] * 3, [1.0] * 3], resolution=1)
+    assert grid.mask.shape == (1,) and grid.is_occupied(torch.zeros(1, 3)).tolist() == [True]

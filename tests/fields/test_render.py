@@ -1,11 +1,30 @@
+"""Tests of senerf/fields/render.py: compositing against the textbook cumprod form and values worked out by hand,
+ray marching through analytic fields, occupancy skipping, chunked image rendering and the shape checks."""
+
+import math
+
 import numpy as np
 import pytest
 import torch
 
-from senerf.fields import (EMPTY_ACC, KPlanesField, OccupancyGrid, render_image, render_rays, volume_render,
-                           volume_render_reference)
+from senerf.fields import EMPTY_ACC, KPlanesField, OccupancyGrid, render_image, render_rays, volume_render
 
-from ._fields_helpers import BallField
+from .analytic_fields import BallField, ConstantField
+
+
+def cumprod_reference(sigma, rgb, t, t_far, background=None) -> dict:
+    """Textbook compositing, written independently of volume_render (use float64):
+    ``alpha_i = 1 - exp(-sigma_i delta_i)``, ``T_i = prod_{k<i} (1 - alpha_k)``, ``w_i = T_i alpha_i``."""
+    delta = torch.cat([t[:, 1:] - t[:, :-1], t_far[:, None] - t[:, -1:]], dim=1).clamp(min=0.0)
+    alpha = 1.0 - torch.exp(-sigma * delta)
+    trans = torch.cumprod(torch.cat([torch.ones_like(alpha[:, :1]), 1.0 - alpha[:, :-1]], dim=1), dim=1)
+    weights = trans * alpha
+    acc = weights.sum(1)
+    color = (weights[..., None] * rgb).sum(1)
+    if background is not None:
+        color = color + (1.0 - acc)[:, None] * torch.as_tensor(background, dtype=color.dtype)
+    dist = torch.where(acc >= EMPTY_ACC, (weights * t).sum(1) / acc.clamp(min=EMPTY_ACC), t_far.to(t))
+    return {"rgb": color, "acc": acc, "ray_dist": dist, "weights": weights}
 
 
 def _random_case(gen, r=64, s=32, dtype=torch.float64):
@@ -23,7 +42,7 @@ def test_matches_cumprod_reference_float64():
     sigma, rgb, t, t_far = _random_case(gen)
     bg = torch.rand(sigma.shape[0], 3, generator=gen, dtype=torch.float64)
     a = volume_render(sigma, rgb, t, t_far, bg)
-    b = volume_render_reference(sigma, rgb, t, t_far, bg)
+    b = cumprod_reference(sigma, rgb, t, t_far, bg)
     for k in ("rgb", "acc", "ray_dist", "weights"):
         torch.testing.assert_close(a[k], b[k], rtol=1e-10, atol=1e-12)
     assert (a["acc"] > 0.05).all()  # the case is not trivially empty
@@ -89,15 +108,6 @@ def test_extremes_finite_values_and_gradients(dtype):
         assert torch.isfinite(x.grad).all()
     assert torch.allclose(out["acc"][:2], torch.zeros(2, dtype=dtype))
     assert torch.allclose(out["acc"][2:], torch.ones(4, dtype=dtype))
-
-
-def test_shape_checks():
-    with pytest.raises(ValueError):
-        volume_render(torch.zeros(4, 5), torch.zeros(4, 5, 3), torch.zeros(4, 6), torch.zeros(4))
-    with pytest.raises(ValueError):
-        volume_render(torch.zeros(4, 5), torch.zeros(4, 5), torch.zeros(4, 5), torch.zeros(4))
-    with pytest.raises(ValueError):
-        volume_render(torch.zeros(4, 5), torch.zeros(4, 5, 3), torch.zeros(4, 5), torch.zeros(4), torch.zeros(2))
 
 
 def _rays(n, gen):
@@ -166,7 +176,122 @@ def test_render_image_matches_render_rays_and_chunking():
         ref = render_rays(field, o, d, near, far, 16, None, torch.ones(3), randomized=False)
     np.testing.assert_allclose(img["rgb"].reshape(-1, 3), ref["rgb"].numpy(), rtol=1e-5, atol=1e-6)
     np.testing.assert_allclose(img["ray_dist"], img2["ray_dist"], rtol=1e-5)
-    # chunk 0 or below stepped by 1 but sliced nothing: uninitialised memory came back (so at 98f1a55)
+    # a chunk below 1 would slice nothing and return uninitialised memory
     for bad in (0, -3, 2.5, True):
         with pytest.raises(ValueError, match="chunk: expected an integer >= 1"):
             render_image(field, o.view(6, 5, 3), d.view(6, 5, 3), 1.5, 4.5, 16, chunk=bad)
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_two_samples_by_hand(dtype):
+    # t = (1, 1.5), t_far = 2.5 -> deltas (0.5, 1.0); sigma (2, 1) -> tau (1, 1).
+    # w0 = 1 - e^-1 = 0.6321206, w1 = e^-1 (1 - e^-1) = 0.2325442, acc = 1 - e^-2 = 0.8646647.
+    # rgb (1,0,0), (0,1,0); bg (0.2, 0.4, 0.6): colour = (w0, w1, 0) + (1 - acc) bg.
+    # ray_dist = (1 w0 + 1.5 w1) / acc = 0.9809369 / 0.8646647 = 1.1344711.
+    e1 = math.exp(-1.0)
+    w0, w1 = 1 - e1, e1 * (1 - e1)
+    acc = 1 - math.exp(-2.0)
+    bg = (0.2, 0.4, 0.6)
+    sigma = torch.tensor([[2.0, 1.0]], dtype=dtype)
+    rgb = torch.tensor([[[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]]], dtype=dtype)
+    t = torch.tensor([[1.0, 1.5]], dtype=dtype)
+    out = volume_render(sigma, rgb, t, torch.tensor([2.5], dtype=dtype), torch.tensor(bg, dtype=dtype))
+    tol = 1e-6 if dtype == torch.float32 else 1e-14
+    np.testing.assert_allclose(out["weights"][0].numpy(), [w0, w1], rtol=tol)
+    np.testing.assert_allclose(out["acc"].numpy(), [acc], rtol=tol)
+    np.testing.assert_allclose(out["rgb"][0].numpy(),
+                               [w0 + (1 - acc) * bg[0], w1 + (1 - acc) * bg[1], (1 - acc) * bg[2]], rtol=tol)
+    np.testing.assert_allclose(out["ray_dist"].numpy(), [(w0 + 1.5 * w1) / acc], rtol=tol)
+
+
+def test_single_sample_last_interval_is_t_far_minus_t():
+    # t = 2, t_far = 3: delta 1, sigma 0.5 -> alpha = 1 - e^-0.5 = 0.3934693 (not 1 for an infinite last
+    # interval, nor 0 for an empty one).
+    out = volume_render(torch.tensor([[0.5]], dtype=torch.float64), torch.ones(1, 1, 3, dtype=torch.float64),
+                        torch.tensor([[2.0]], dtype=torch.float64), torch.tensor([3.0], dtype=torch.float64))
+    np.testing.assert_allclose(out["acc"].numpy(), [1 - math.exp(-0.5)], rtol=1e-14)
+
+
+def test_background_none_is_black():
+    # Same case as above with colour (1, 1, 1): acc = 1 - e^-0.5 = 0.3934693, so the colour on black is acc.
+    out = volume_render(torch.tensor([[0.5]], dtype=torch.float64), torch.ones(1, 1, 3, dtype=torch.float64),
+                        torch.tensor([[2.0]], dtype=torch.float64), torch.tensor([3.0], dtype=torch.float64))
+    np.testing.assert_allclose(out["rgb"][0].numpy(), [1 - math.exp(-0.5)] * 3, rtol=1e-14)
+
+
+def test_render_rays_bin_centres_constant_density_by_hand():
+    # near 1, far 3, 4 bins of 0.5: centres t = 1.25, 1.75, 2.25, 2.75; intervals 0.5, 0.5, 0.5 and
+    # far - 2.75 = 0.25: optical depth sigma * 1.75 = 0.5 * 1.75 = 0.875, acc = 1 - e^-0.875 = 0.5831457.
+    o = torch.zeros(2, 3, dtype=torch.float64)
+    d = torch.tensor([[0.0, 0.0, 1.0], [1.0, 0.0, 0.0]], dtype=torch.float64)
+    out = render_rays(ConstantField(0.5), o, d, torch.full((2,), 1.0, dtype=torch.float64),
+                      torch.full((2,), 3.0, dtype=torch.float64), 4, None, torch.zeros(3, dtype=torch.float64),
+                      randomized=False)
+    np.testing.assert_allclose(out["t"][0].numpy(), [1.25, 1.75, 2.25, 2.75], rtol=1e-15)
+    np.testing.assert_allclose(out["acc"].numpy(), 1 - math.exp(-0.875), rtol=1e-14)
+    # black background: colour = acc * (0.2, 0.4, 0.6)
+    np.testing.assert_allclose(out["rgb"][1].numpy(), (1 - math.exp(-0.875)) * np.array([0.2, 0.4, 0.6]),
+                               rtol=1e-6)
+
+
+def test_render_image_passes_randomized_and_generator_through():
+    # with randomized=True and a seeded generator render_image equals one render_rays call with a generator of
+    # the same seed (one chunk), and differs from the bin centres
+    field = ConstantField(0.8)
+    o = torch.zeros(2, 3, 3)
+    d = torch.nn.functional.normalize(torch.rand(2, 3, 3, generator=torch.Generator().manual_seed(0)) + 1, dim=-1)
+    img = render_image(field, o, d, 0.5, 2.5, 8, randomized=True, generator=torch.Generator().manual_seed(4))
+    ref = render_rays(field, o.view(6, 3), d.view(6, 3), torch.full((6,), 0.5), torch.full((6,), 2.5), 8,
+                      torch.Generator().manual_seed(4), None, randomized=True)
+    np.testing.assert_array_equal(img["ray_dist"].reshape(-1), ref["ray_dist"].numpy())
+    centred = render_image(field, o, d, 0.5, 2.5, 8)
+    assert not np.allclose(img["ray_dist"], centred["ray_dist"])
+
+
+R, S = 3, 4
+
+
+def _composite(**replace) -> dict:
+    """A valid volume_render call of R = 3 rays with S = 4 samples."""
+    t = torch.linspace(1.0, 2.0, S).expand(R, S)
+    args = dict(sigma=torch.ones(R, S), rgb=torch.zeros(R, S, 3), t=t, t_far=torch.full((R,), 2.5))
+    args.update(replace)
+    return args
+
+
+@pytest.mark.parametrize("name, value", [
+    ("sigma", torch.ones(R * S)), ("sigma", torch.ones(R, S, 1)), ("rgb", torch.zeros(R, S, 4)),
+    ("t", torch.zeros(R, S + 1)), ("t_far", torch.ones(R, 1)), ("t_far", torch.ones(R + 1)),
+    ("background", torch.zeros(2)),
+])
+def test_volume_render_refuses_each_misshapen_input(name, value):
+    with pytest.raises(ValueError, match=f"{name}: expected shape"):
+        volume_render(**_composite(**{name: value}))
+    assert volume_render(**_composite())["acc"].shape == (R,)
+
+
+def _march(**replace) -> dict:
+    """A valid render_rays call: R = 3 rays along +z through a ball at the origin."""
+    args = dict(rays_o=torch.tensor([[0.0, 0.0, -2.0]] * R), rays_d=torch.tensor([[0.0, 0.0, 1.0]] * R),
+                near=torch.ones(R), far=torch.full((R,), 3.0))
+    args.update(replace)
+    return args
+
+
+@pytest.mark.parametrize("name, value, arg", [
+    ("rays_o", torch.zeros(R * 3), "rays_o/rays_d"), ("rays_o", torch.zeros(R, 2), "rays_o/rays_d"),
+    ("rays_d", torch.ones(R + 1, 3), "rays_o/rays_d"), ("near", torch.ones(R + 1), "near/far"),
+    ("far", torch.ones(R, 1), "near/far"),
+])
+def test_render_rays_refuses_each_misshapen_input(name, value, arg):
+    with pytest.raises(ValueError, match=f"{arg}: expected"):
+        render_rays(BallField(), **_march(**{name: value}), n_samples=S, randomized=False)
+    assert render_rays(BallField(), **_march(), n_samples=S, randomized=False)["acc"].shape == (R,)
+
+
+@pytest.mark.parametrize("o_shape, d_shape", [((4, 3), (4, 3)), ((2, 2, 2), (2, 2, 2)), ((2, 2, 3), (2, 1, 3))])
+def test_render_image_refuses_origins_and_dirs_that_are_not_h_w_3(o_shape, d_shape):
+    with pytest.raises(ValueError, match=r"origins/dirs: expected equal shapes \(H, W, 3\)"):
+        render_image(BallField(), np.zeros(o_shape), np.ones(d_shape), 1.0, 3.0, S)
+    o, d = np.array([[[0.0, 0.0, -2.0]]]), np.array([[[0.0, 0.0, 1.0]]])
+    assert render_image(BallField(), o, d, 1.0, 3.0, S)["acc"].shape == (1, 1)

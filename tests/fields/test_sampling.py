@@ -1,3 +1,5 @@
+"""Tests of senerf/fields/sampling.py: stratified bins and the NDC map, against hand-written formulas."""
+
 import numpy as np
 import pytest
 import torch
@@ -72,3 +74,41 @@ def test_ndc_xy_is_normalised_pixel_coordinate():
         np.testing.assert_allclose(p[:, 1].numpy(), ((uv[:, 1] - h / 2) / (h / 2)).numpy(), atol=1e-12)
     with pytest.raises(ValueError):
         ndc_rays(torch.zeros(3, 2), d, fx, fy, w, h)
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_stratified_jitter_is_uniform_and_per_ray(dtype):
+    # 4000 rays x 8 bins of U[0, 1) offsets: the mean offset is 0.5 +- 0.0016 (std 1/sqrt(12 * 32000)); a jitter
+    # over half a bin would have mean 0.25, one shared by every ray would repeat across rays.
+    gen = torch.Generator().manual_seed(0)
+    near, far = torch.full((4000,), 1.0, dtype=dtype), torch.full((4000,), 3.0, dtype=dtype)
+    t = stratified_bins(near, far, 8, gen)
+    u = (t - 1.0) / 0.25 - torch.arange(8, dtype=dtype)        # offset inside each bin
+    assert float(u.min()) >= -1e-5 and float(u.max()) <= 1 + 1e-5
+    assert abs(float(u.mean()) - 0.5) < 0.01
+    assert float(u.max()) > 0.99 and float(u.min()) < 0.01
+    assert not torch.equal(t[0], t[1])                           # rays draw their own offsets
+
+
+@pytest.mark.parametrize("near_shape, far_shape", [((3, 1), (3, 1)), ((3,), (4,)), ((), ())])
+def test_stratified_bins_refuses_near_and_far_that_are_not_equal_r(near_shape, far_shape):
+    with pytest.raises(ValueError, match="near/far: expected equal shapes"):
+        stratified_bins(torch.zeros(near_shape), torch.ones(far_shape), 4, randomized=False)
+
+
+@pytest.mark.parametrize("n_bins", [0, -1])
+def test_stratified_bins_refuses_fewer_than_one_bin_and_one_bin_is_its_centre(n_bins):
+    with pytest.raises(ValueError, match="n_bins: expected >= 1"):
+        stratified_bins(torch.zeros(3), torch.ones(3), n_bins, randomized=False)
+    torch.testing.assert_close(stratified_bins(torch.zeros(3), torch.full((3,), 2.0), 1, randomized=False),
+                               torch.ones(3, 1))
+
+
+@pytest.mark.parametrize("near", [0.0, -1.0])
+def test_ndc_rays_refuses_a_near_plane_at_or_behind_the_camera(near):
+    # near = 0 would map every ray to z' = 1
+    o, d = torch.zeros(2, 3), torch.tensor([[0.0, 0.0, 1.0]] * 2)
+    with pytest.raises(ValueError, match="near: expected > 0"):
+        ndc_rays(o, d, 2.0, 2.0, 4.0, 4.0, near=near)
+    o_ndc, _ = ndc_rays(o, d, 2.0, 2.0, 4.0, 4.0, near=1e-3)
+    torch.testing.assert_close(o_ndc[:, 2], torch.full((2,), -1.0))   # the origin moved to z = near: z' = -1

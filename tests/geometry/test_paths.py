@@ -200,9 +200,8 @@ def test_spiral_refuses_a_frame_within_a_relative_tolerance_of_the_focus_point()
 
 
 def test_spiral_of_a_tiny_scene_is_the_unit_spiral_scaled():
-    # the refusal's tolerance was 1e-9 x max(1, focus): every frame of a 1e-10-unit spiral was "at the focus
-    # point" (so at bdc4ebf). A spiral scales with the scene (independent expectation: the same call at unit
-    # size, positions times 1e-10, rotations equal).
+    # The focus-point refusal is relative, so a spiral scales with the scene (independent expectation: the
+    # same call at unit size, positions times 1e-10, rotations equal).
     unit = spiral_path(np.eye(4)[None], 4, focus_depth=1.0, radii=(0.1, 0.1, 0.0), rotations=1.0)
     tiny = spiral_path(np.eye(4)[None], 4, focus_depth=1e-10, radii=(1e-11, 1e-11, 0.0), rotations=1.0)
     assert np.allclose(tiny[:, :3, :3], unit[:, :3, :3], atol=1e-12)

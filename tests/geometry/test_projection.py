@@ -105,7 +105,6 @@ def test_unproject_project_round_trip(uv01, z, eye, dtype):
     assert ok
     # float32: world coordinates (|.| <~ 11) carry ~6e-8 * 11 = 7e-7 of error each way (unproject, then
     # project's float32 K [R|t] p), i.e. about 2 * 300 px * 7e-7 / z; 6e-4 / z leaves a margin of 1.4
-    # (hypothesis found uv (279.625, 120), z 1/64 off by 0.025 px, over the 0.020 of 3e-4 / z; so at 8d70ca8)
     tol = 1e-7 if dtype == np.float64 else 1e-3 + 6e-4 / z
     np.testing.assert_allclose(uv2, uv, atol=tol)
     # float32 world coordinates carry ~6e-8 * |camera distance ~ 11| of absolute error.
@@ -133,8 +132,7 @@ def test_batched_poses_broadcast():
 def test_float32_points_far_from_the_origin(offset, batched):
     # Georeferenced float32 points: the projection of the float32 values must be as exact as the float32
     # output allows.  Golden: the pinhole formula in float64 on the same values, K (R^T (X - C)), written
-    # out here with C subtracted first (no cancellation).  K [R|t] applied in float32 was 0.49 px off at
-    # 1e5 and 1.77 px at 5e5 (so at c5d7d65).
+    # out here with C subtracted first (no cancellation).
     rng = np.random.default_rng(3)
     k = Intrinsics(100.0, 100.0, 50.0, 50.0, 100, 100)
     origin = np.array([offset, -offset, offset / 3])

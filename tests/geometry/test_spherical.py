@@ -190,8 +190,7 @@ def _rolled_off_axis_inputs():
 
 @pytest.mark.parametrize("dtype", DTYPES)
 def test_zero_offset_returns_the_inputs_whatever_their_roll(dtype):
-    """Offset 0 reproduces every input exactly, with the default centre and up (the look-at sampler of
-    before rolled lego's Extreme views by up to 4.8 degrees and the docstring example's by 9.2)."""
+    """Offset 0 reproduces every input exactly, with the default centre and up, whatever the inputs' roll."""
     inputs, _ = _rolled_off_axis_inputs()
     inputs = inputs.astype(dtype)
     c2w, src = sample_pseudo_views(inputs, 0.0, 6, np.random.default_rng(3))
@@ -338,10 +337,9 @@ def test_sample_pseudo_views_offsets_go_both_ways(dtype):
 @pytest.mark.parametrize("center", [(0.1, 0.2, 0.3), (1e3, -2e3, 5.0)])
 @pytest.mark.parametrize("elevation", [90.0, -90.0])
 def test_float32_cameras_put_on_a_pole_keep_their_azimuth(center, elevation):
-    # A float32 camera centre is off the pole by its own rounding (~1e-7 |t|), far more than the old absolute
-    # 1e-12 r pole test, so the "azimuth" came from that rounding: 63.43 instead of 30 at centre (0.1, 0.2, 0.3)
-    # (so at bdc4ebf), and sample_pseudo_views / orbit_path carried it on. Expected values: the azimuths given,
-    # and for the derived functions the same calls on float64 poses (which were right before).
+    # A float32 camera centre is off the pole by its own rounding (~1e-7 |t|): its azimuth must still be the one
+    # given, not that rounding's. Expected values: the azimuths given, and for the derived functions the same
+    # calls on float64 poses.
     for az in (30.0, -150.0, 180.0):
         pose = pose_from_spherical(np.float32(az), elevation, 4.0, center=center)
         assert pose.dtype == np.float32
@@ -358,14 +356,14 @@ def test_float32_cameras_put_on_a_pole_keep_their_azimuth(center, elevation):
 
     frames = orbit_path(inputs32, 4, center=center, up=(0, 0, 1))
     az_frames = spherical_from_pose(frames.astype(np.float64), center=center)[0]
-    # float32 frames 2e3 from the origin hold their azimuth to ~1e-3 degrees (the bug was 33 degrees)
+    # float32 frames 2e3 from the origin hold their azimuth to ~1e-3 degrees
     tol = 1e-3 * max(1.0, np.abs(center).max() / 100.0)
     assert np.allclose((az_frames - np.array([30.0, 120.0, 210.0, 300.0]) + 180.0) % 360.0 - 180.0, 0.0, atol=tol)
 
 
 @pytest.mark.parametrize("dtype", DTYPES)
 def test_offset_zero_gives_back_views_at_the_poles_and_wider_offsets_never_cross_one(dtype):
-    # the elevation window was clipped to +-89.9, so a top view (90) came back at 89.9, 6e-3 away (so at bdc4ebf)
+    # a top view (90) comes back at 90, not clipped to the +-89.9 window
     inputs = pose_from_spherical(np.array([30.0, 120.0, -60.0]), np.array([90.0, 20.0, -90.0]), 4.0).astype(dtype)
     same, _ = sample_pseudo_views(inputs, 0.0, 3, np.random.default_rng(0), center=(0, 0, 0), up=(0, 0, 1))
     assert np.abs(same - inputs).max() < (1e-12 if dtype == np.float64 else 1e-5)
@@ -379,11 +377,11 @@ def test_offset_zero_gives_back_views_at_the_poles_and_wider_offsets_never_cross
 @pytest.mark.parametrize("eye", [(0.0, 0.0, 0.0), (1.0, 2.0, 3.0), (1e4, -3.0, 0.5)])
 def test_inputs_sharing_one_camera_centre_are_refused_naming_center(eye):
     # cameras turned about one point: their optical axes meet at it, so the default centre is a camera centre
-    # plus rounding; at (1, 2, 3) that gave views turned about a noise-chosen axis, at 0 another message
+    # plus rounding, and turning about it is undefined
     same = np.stack([look_at(eye, np.add(eye, d)) for d in ([1, 0, 0], [0, 1, 0], [0.3, 0.2, -1.0])])
-    with pytest.raises(ValueError, match=r"input_c2w\[0\]'s camera centre coincides with center \(the point nearest"):
+    with pytest.raises(ValueError, match=r"input_c2w\[0\]'s camera centre coincides with center"):
         sample_pseudo_views(same, 5.0, 3, np.random.default_rng(0))
-    with pytest.raises(ValueError, match=r"input_c2w\[1\]'s camera centre coincides with center; pseudo"):
+    with pytest.raises(ValueError, match=r"input_c2w\[1\]'s camera centre coincides with center"):
         sample_pseudo_views(np.stack([look_at(np.add(eye, (5.0, 0.0, 0.0)), eye), same[0]]), 5.0, 3,
                             np.random.default_rng(0), center=eye, up=(0, 0, 1))
 
@@ -396,14 +394,13 @@ def test_sample_pseudo_views_names_bad_counts_and_centres():
     assert sample_pseudo_views(inputs, 1.0, 3.0, np.random.default_rng(0))[0].shape == (3, 4, 4)
     with pytest.raises(ValueError, match="center"):
         sample_pseudo_views(inputs, 1.0, 2, np.random.default_rng(0), center=(0.0, 0.0))
-    with pytest.raises(ValueError, match="default_up: input_c2w holds non-finite rotations"):
+    with pytest.raises(ValueError, match=r"input_c2w\[0\]: non-finite"):
         default_up(np.full((2, 4, 4), np.nan))
 
 
 def test_functions_reading_camera_axes_refuse_scaled_or_mirrored_rotations():
-    # closest_point_to_axes, default_up and nearest_view_angles (optical-axis mode) took a rotation scaled by 2
-    # or a reflection without a word, where the README says every function that uses a rotation checks it
-    # (so at 74c7cd8)
+    # closest_point_to_axes, default_up and nearest_view_angles (optical-axis mode) use the rotations as such:
+    # a rotation scaled by 2 or a reflection is refused, naming the argument
     from senerf.geometry import nearest_view_angles
 
     poses = pose_from_spherical(np.array([0.0, 90.0, 200.0]), 20.0, 4.0)
@@ -418,3 +415,72 @@ def test_functions_reading_camera_axes_refuse_scaled_or_mirrored_rotations():
         with pytest.raises(ValueError, match="train_c2w"):
             nearest_view_angles(bad, poses, center=None)
     assert np.isfinite(nearest_view_angles(scaled, poses)).all()   # positions only: the rotation is not used
+
+
+# Argument checks at the edge: each bad input is refused with a ValueError naming the argument, and the accepted
+# side of each boundary passes.
+
+
+@pytest.mark.parametrize("up", [(np.nan, 0.0, 1.0), (0.0, np.inf, 1.0), (0.0, 0.0, 0.0)])
+def test_a_non_finite_or_zero_up_is_refused(up):
+    with pytest.raises(ValueError, match="up: must be finite and non-zero"):
+        spherical_basis(up)
+    with pytest.raises(ValueError, match="up: must be finite and non-zero"):
+        pose_from_spherical(0.0, 10.0, 4.0, up=up)
+
+
+def test_a_zero_row_of_up_is_refused_and_a_tiny_up_is_a_direction():
+    # a zero-length check on the squared length would refuse 1e-200 (its square underflows to 0)
+    with pytest.raises(ValueError, match="up: must be finite and non-zero"):
+        spherical_basis(np.array([[0.0, 0.0, 1.0], [0.0, 0.0, 0.0]]))
+    e1, e2, u = spherical_basis((0.0, 0.0, 1e-200))
+    assert (e1.tolist(), e2.tolist(), u.tolist()) == ([1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0])
+
+
+@pytest.mark.parametrize("kw", [dict(azimuth=np.nan), dict(azimuth=np.array([0.0, np.inf])),
+                                dict(center=(0.0, np.nan, 0.0)), dict(center=(np.inf, 0.0, 0.0))])
+def test_pose_from_spherical_refuses_a_non_finite_azimuth_or_center(kw):
+    args = {"azimuth": 30.0, "center": (0.0, 0.0, 0.0), **kw}
+    with pytest.raises(ValueError, match="azimuth and center must be finite"):
+        pose_from_spherical(args["azimuth"], 10.0, 4.0, center=args["center"])
+    c2w = pose_from_spherical(750.0, 10.0, 4.0, center=(1e6, -2.0, 3.0))   # any finite azimuth and center
+    assert np.isfinite(c2w).all() and is_rigid(c2w)
+
+
+def test_spherical_from_pose_refuses_an_offset_that_is_not_finite():
+    with pytest.raises(ValueError, match="center must be finite"):
+        spherical_from_pose(np.eye(4), center=(np.inf, 0.0, 0.0))
+    far = np.eye(4)
+    far[0, 3] = 1e308
+    with np.errstate(over="ignore"), pytest.raises(ValueError, match="too far from center"):
+        spherical_from_pose(far, center=(-1e308, 0.0, 0.0))      # 2e308 overflows float64
+    az, el, r = spherical_from_pose(far, center=(1e307, 0.0, 0.0))   # a huge finite offset is fine
+    assert (float(az), float(el), float(r)) == pytest.approx((0.0, 0.0, 9e307))
+
+
+def test_closest_point_to_axes_needs_a_pose():
+    with pytest.raises(ValueError, match="at least one"):
+        closest_point_to_axes(np.zeros((0, 4, 4)))
+
+
+@pytest.mark.parametrize("c2w", [np.eye(4), np.zeros((0, 4, 4)), np.zeros((2, 3, 3)), np.zeros((1, 2, 4, 4))],
+                         ids=["one-pose-unbatched", "none", "3x3", "two-batch-dims"])
+def test_default_up_refuses_what_is_not_a_list_of_poses(c2w):
+    with pytest.raises(ValueError, match="input_c2w: expected shape"):
+        default_up(c2w)
+
+
+def test_default_up_of_one_pose_of_either_shape_is_its_image_up_axis():
+    pose = pose_from_spherical(30.0, 20.0, 4.0)
+    for c2w in (pose[None], pose[None, :3]):
+        np.testing.assert_allclose(default_up(c2w), -pose[:3, 1])
+
+
+@pytest.mark.parametrize("c2w", [pose_from_spherical(0.0, 20.0, 4.0), np.zeros((0, 4, 4))], ids=["unbatched", "none"])
+def test_sample_pseudo_views_needs_a_list_of_at_least_one_pose(c2w):
+    with pytest.raises(ValueError, match=r"input_c2w: expected shape \(m, 4, 4\)"):
+        sample_pseudo_views(c2w, 5.0, 2, np.random.default_rng(0))
+    one = pose_from_spherical(0.0, 20.0, 4.0)[None]   # m = 1 with a center
+    out, src = sample_pseudo_views(one, 0.0, 2, np.random.default_rng(0), center=(0.0, 0.0, 0.0))
+    assert src.tolist() == [0, 0]
+    np.testing.assert_allclose(out, np.repeat(one, 2, axis=0), atol=1e-12)

@@ -148,7 +148,6 @@ def test_make_demo_scene(tmp_path):
     t0 = time.perf_counter()
     out = make_demo_scene(tmp_path / "demo", seed=1)
     dt = time.perf_counter() - t0
-    print(f"\n[procedural] make_demo_scene: {dt:.2f} s")
     scene = load_scene(out)
     assert [len(scene.splits[s]) for s in ("train", "val", "test")] == [20, 8, 16]
     assert scene.rgb.shape[1:3] == (100, 100)
@@ -160,8 +159,8 @@ def test_make_demo_scene(tmp_path):
 
 
 def test_overwrite_with_fewer_views_leaves_no_unlisted_images(tmp_path):
-    """Before, a smaller export over a larger one left r_2.png, r_3.png ... that no transforms file lists
-    (so at 3a2c1d0); a user's own file in a split folder stays."""
+    """A smaller export over a larger one removes the views no transforms file lists; a user's own file in a
+    split folder stays."""
     out = tmp_path / "s"
     small = dict(n_val=0, width=8, height=6)
     export_blender_scene(out, n_train=4, n_test=3, **small)

@@ -1,8 +1,6 @@
-"""Tests of senerf/procedural/render.py: exact hits, depth conventions, view independence, speed."""
+"""Tests of senerf/procedural/render.py: exact hits, depth conventions, view independence."""
 
 from __future__ import annotations
-
-import time
 
 import numpy as np
 import pytest
@@ -126,18 +124,6 @@ def test_render_deterministic_and_checks_inputs(scene, view):
         cast_rays(scene, np.zeros((2, 3)), np.ones((2, 3)))  # not unit
     with pytest.raises(ValueError):
         cast_rays(scene, np.zeros((2, 3)), np.zeros((3, 3)))
-
-
-def test_measure_rays_per_second(scene):
-    intr = Intrinsics.from_fov(39.6, 400, 400)
-    c2w = pose_from_spherical(10.0, 30.0, 4.0)
-    render(scene, Intrinsics.from_fov(39.6, 8, 8), c2w)  # warm-up
-    t0 = time.perf_counter()
-    r = render(scene, intr, c2w)
-    dt = time.perf_counter() - t0
-    print(f"\n[procedural] render 400x400 (RGB, depth, normals, ids): {dt:.3f} s, {160000 / dt / 1e6:.2f} M rays/s,"
-          f" {r.alpha.mean():.2f} hit fraction, {len(scene.mesh.faces)} faces")
-    assert r.alpha.sum() > 0
 
 
 def _lambert(normal) -> float:

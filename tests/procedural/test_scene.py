@@ -40,8 +40,8 @@ def test_build_rejects_non_config():
 
 def test_scene_bounded_and_has_all_objects():
     scene = build_scene(SceneConfig(seed=3))
-    assert np.all(scene.bounds[0] >= -1.5) and np.all(scene.bounds[1] <= 1.5)
-    assert scene.object_ids == tuple(range(len(OBJECT_NAMES)))
+    assert np.all(scene.mesh.bounds[0] >= -1.5) and np.all(scene.mesh.bounds[1] <= 1.5)
+    assert np.unique(scene.face_object).tolist() == list(range(len(OBJECT_NAMES)))
     assert len(scene.face_object) == len(scene.mesh.faces)
     assert scene.mesh.is_watertight
     # the ground disc's top face is at GROUND_TOP
@@ -51,7 +51,7 @@ def test_scene_bounded_and_has_all_objects():
 
 def test_without_ground_drops_object_zero():
     scene = build_scene(SceneConfig(with_ground=False))
-    assert scene.object_ids == (1, 2, 3, 4)
+    assert np.unique(scene.face_object).tolist() == [1, 2, 3, 4]
 
 
 def test_deterministic_given_seed_and_seed_matters():

@@ -293,7 +293,7 @@ def test_different_run_is_refused_without_overwrite_and_replaced_with_it(scene24
     stranger.mkdir()
     (stranger / "notes.txt").write_text("mine")
     assert main([str(scene24), "--views", "0,1,2", "--out", str(stranger), *TINY_FIT]) == 2
-    _check_one_line(capsys.readouterr().err, [str(stranger), "not a senerf-fit output folder"])
+    _check_one_line(capsys.readouterr().err, [str(stranger), "not a senerf-fit run folder"])
     assert (stranger / "notes.txt").read_text() == "mine"
     # a file where the output folder should be
     a_file = tmp_path / "a_file"

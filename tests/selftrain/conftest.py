@@ -1,11 +1,12 @@
-"""Fixtures shared by the self-training tests: a tiny procedural scene and a teacher trained on it."""
+"""Fixtures shared by the self-training tests (made once per session): a tiny procedural scene, a teacher trained
+on it and the VGG-19 extractor."""
 
 from __future__ import annotations
 
 import pytest
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="session")
 def tiny_scene(tmp_path_factory):
     pytest.importorskip("trimesh")
     from senerf.data import load_scene
@@ -19,12 +20,21 @@ def tiny_scene(tmp_path_factory):
     return load_scene(root)
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="session")
+def vgg():
+    """The default VGG-19 extractor, built once (it holds no state between calls)."""
+    from senerf.selftrain import VGG19Features
+
+    return VGG19Features()
+
+
+@pytest.fixture(scope="session")
 def tiny_teacher(tiny_scene):
     """A 10-step teacher on three views of the tiny scene: (train_idx, model, TrainResult)."""
     import torch
 
-    from senerf.train import RayBatchSource, TrainConfig, build_field, choose_model, train_field
+    from senerf.config import TrainConfig
+    from senerf.train import RayBatchSource, build_field, choose_model, train_field
 
     train_idx = tiny_scene.splits["train"][:3]
     model = choose_model(tiny_scene, train_idx, {"n_samples": 16, "resolution": 32, "occupancy_resolution": 16},

@@ -1,4 +1,6 @@
-"""Tests of senerf.selftrain.reliability: warped feature similarity, thresholds, mask quality."""
+"""Tests of senerf.selftrain.reliability: warped feature similarity on a textured plane seen by known cameras
+(checked against the geometry of the plane), the bilinear lookup against its reference, thresholds against
+``numpy.quantile``, mask quality counted by hand."""
 
 from __future__ import annotations
 
@@ -230,13 +232,54 @@ def test_gt_mask_and_mask_quality_by_hand():
     assert np.isnan(mask_quality(np.zeros(3, bool), np.zeros(3, bool))["precision"])  # nothing predicted
 
 
-def test_shape_checks():
-    feats, z = plane_view(camera(0.0))
-    with pytest.raises(ValueError):
-        view_similarity(feats, z[:-1], np.ones(K.size), K, camera(0.0), feats[None], z[None], K, camera(0.0)[None])
-    with pytest.raises(ValueError):
-        view_similarity(feats, z, np.ones(K.size), K, camera(0.0), feats[None, ..., :5], z[None], K,
-                        camera(0.0)[None])
+def _similarity_args(**replace) -> dict:
+    """A valid view_similarity call: a 4 x 4 pseudo view with C = 2 against k = 2 known 4 x 4 views."""
+    k4 = geometry.Intrinsics(4.0, 4.0, 2.0, 2.0, 4, 4)
+    args = dict(pseudo_features=np.ones((4, 4, 2)), pseudo_z=np.ones((4, 4)), pseudo_opacity=np.ones((4, 4)),
+                pseudo_intrinsics=k4, pseudo_c2w=np.eye(4), known_features=np.ones((2, 4, 4, 2)),
+                known_z=np.ones((2, 4, 4)), known_intrinsics=k4, known_c2w=np.stack([np.eye(4)] * 2))
+    return {**args, **replace}
+
+
+@pytest.mark.parametrize("call, name", [
+    (lambda: bilinear_sample(np.zeros((4, 4)), np.full((2, 2), 0.5)), "image"),
+    (lambda: bilinear_sample(np.zeros((4, 4, 1, 1)), np.full((2, 2), 0.5)), "image"),
+    (lambda: bilinear_sample(np.zeros((4, 4, 3)), np.full((2, 3), 0.5)), "uv"),
+    (lambda: bilinear_sample(np.zeros((4, 4, 3)), np.full((2,), 0.5)), "uv"),
+    (lambda: cosine_similarity(np.ones((3, 4)), np.ones((1, 4))), "b must be"),            # would broadcast
+    (lambda: view_similarity(**_similarity_args(pseudo_features=np.ones((4, 4)))), "pseudo_features"),
+    (lambda: view_similarity(**_similarity_args(pseudo_z=np.ones((4, 3)))), "pseudo_z"),
+    (lambda: view_similarity(**_similarity_args(known_features=np.ones((2, 4, 4, 5)))), "known_features"),
+    (lambda: view_similarity(**_similarity_args(known_z=np.ones((2, 4, 3)))), "known_z"),
+    (lambda: view_similarity(**_similarity_args(known_z=np.ones((1, 4, 4)))), "known_z"),
+    (lambda: view_similarity(**_similarity_args(known_c2w=np.stack([np.eye(4)] * 3))), "known_c2w"),
+    (lambda: view_similarity(**_similarity_args(known_c2w=np.zeros((2, 3, 4)))), "known_c2w"),
+    (lambda: threshold_weights(np.zeros((2, 2)), np.ones((1, 2), bool), "fixed", tau=0.5), "foreground"),
+    (lambda: gt_reliable_mask(np.zeros((2, 2, 3)), np.zeros((2, 1, 3))), "gt_rgb"),
+    (lambda: gt_reliable_mask(np.zeros((2, 2, 4)), np.zeros((2, 2, 4))), "gt_rgb"),
+    (lambda: mask_quality(np.ones(3, bool), np.ones(1, bool)), "truth"),
+])
+def test_misshapen_arguments_are_refused_naming_them(call, name):
+    with pytest.raises(ValueError, match=name):
+        call()
+
+
+def test_unknown_threshold_kinds_are_refused():
+    with pytest.raises(ValueError, match="topk"):
+        resolve_threshold("topk", np.zeros(3))
+    with pytest.raises(ValueError, match="topk"):
+        threshold_weights(np.zeros(3), np.ones(3, bool), "topk", tau=0.5)
+
+
+def test_view_similarity_with_no_known_view_matches_nothing():
+    opacity = np.array([[0.0, 0.49, 0.5, 1.0]] * 4)
+    out = view_similarity(**_similarity_args(pseudo_opacity=opacity, known_features=np.ones((0, 4, 4, 2)),
+                                             known_z=np.ones((0, 4, 4)), known_c2w=np.zeros((0, 4, 4))),
+                          opacity_threshold=0.5)
+    np.testing.assert_array_equal(out.similarity, np.full((4, 4), NO_MATCH, np.float32))
+    assert out.similarity.dtype == np.float32
+    assert out.per_view.shape == (0, 4, 4) and out.valid.shape == (0, 4, 4) and out.valid.dtype == bool
+    np.testing.assert_array_equal(out.foreground, opacity >= 0.5)
 
 
 def test_per_view_intrinsics_match_separate_single_view_calls():
@@ -287,8 +330,8 @@ def test_foreground_includes_opacity_exactly_at_the_threshold():
 
 
 def test_a_nan_in_one_known_view_does_not_veto_the_others_and_weighs_nothing():
-    # max over views passed a NaN through: one corrupt known view vetoed pixels another confirmed, and the
-    # unified weighting gave NaN (a review, so at 48ad7a7). Expected: that view does not count there.
+    # a NaN passed through the max over views would let one corrupt known view veto pixels another confirmed,
+    # and make the unified weight NaN: that view does not count there.
     kf, kz, kc, pf, pz, opacity = _two_known_views_and_a_pseudo_view()
     clean = view_similarity(pf, pz, opacity, K, camera(0.05), kf, kz, K, kc)
     corrupt = kf.copy()
@@ -302,8 +345,8 @@ def test_a_nan_in_one_known_view_does_not_veto_the_others_and_weighs_nothing():
 
 
 def test_an_adaptive_quantile_on_a_tie_keeps_the_tied_pixels():
-    # saturated similarities put the (1 - alpha) quantile on a tie, and "> tau" kept no pixel at all, where the
-    # adaptive threshold exists to keep its top share (a review, so at 48ad7a7)
+    # saturated similarities put the (1 - alpha) quantile on a tie, where "> tau" would keep no pixel at all and
+    # the adaptive threshold exists to keep its top share
     fg = np.ones((4, 4), bool)
     flat = np.full((4, 4), 0.93)
     tau = resolve_threshold("adaptive", flat[fg], alpha=0.15)
@@ -311,7 +354,7 @@ def test_an_adaptive_quantile_on_a_tie_keeps_the_tied_pixels():
     top = np.r_[np.linspace(0.2, 0.8, 80), np.ones(20)].reshape(10, 10)   # top 20 % saturated at 1.0
     tau = resolve_threshold("adaptive", top.ravel(), alpha=0.15)
     assert threshold_weights(top, np.ones_like(top, bool), "adaptive", tau=tau).mean() == pytest.approx(0.2)
-    spread = np.linspace(0.0, 1.0, 100).reshape(10, 10)   # no tie: "> tau" as before
+    spread = np.linspace(0.0, 1.0, 100).reshape(10, 10)   # no tie: "> tau"
     tau = resolve_threshold("adaptive", spread.ravel(), alpha=0.15)
     assert threshold_weights(spread, np.ones_like(spread, bool), "adaptive", tau=tau).mean() == pytest.approx(0.15)
     assert threshold_weights(flat, fg, "fixed", tau=0.93).sum() == 0.0   # the fixed threshold stays strict
@@ -340,7 +383,7 @@ def test_tensor_features_are_looked_up_in_torch_with_the_same_result(monkeypatch
     """Features handed over as tensors (a CUDA fit keeps VGG's features on the GPU) are looked up in torch on
     their device: the NumPy path's valid views and NO_MATCH pixels exactly, its similarities within float32
     rounding, across lookup chunks, with a partly dropped background and a NaN known view not counted; also
-    for pseudo features scaled by -1e-3 (negative cosines, small norms)."""
+    for pseudo features scaled by -1e-3 (negative cosines, small norms) and zero vectors (similarity 0)."""
     import torch
 
     import senerf.selftrain.reliability as rel
@@ -348,6 +391,7 @@ def test_tensor_features_are_looked_up_in_torch_with_the_same_result(monkeypatch
 
     kf, kz, kc, pf, pz, opacity = _two_known_views_and_a_pseudo_view()
     pf = (pf * pseudo_scale).astype(np.float32)
+    pf[20:, 20:] = 0.0      # zero vectors: similarity 0 with everything
     opacity = opacity.copy()
     opacity[:, :15] = 0.2
     kf = kf.copy()
@@ -366,6 +410,7 @@ def test_tensor_features_are_looked_up_in_torch_with_the_same_result(monkeypatch
     assert isinstance(got.similarity, np.ndarray) and got.similarity.dtype == np.float32
     assert expect.valid.sum() > 4 * 5 * 3 and (expect.per_view == NO_MATCH).any()
     assert (expect.per_view[expect.valid] < 0).any() == (pseudo_scale < 0)
+    assert (expect.per_view[:, 20:, 20:][expect.valid[:, 20:, 20:]] == 0.0).sum() > 10
     np.testing.assert_array_equal(got.valid, expect.valid)
     np.testing.assert_array_equal(got.per_view == NO_MATCH, expect.per_view == NO_MATCH)
     np.testing.assert_allclose(got.per_view, expect.per_view, rtol=0, atol=2e-6)
@@ -383,16 +428,3 @@ def test_array_pseudo_features_with_tensor_known_features_take_the_numpy_path(de
     got = view_similarity(pf, pz, opacity, K, camera(0.05), torch.from_numpy(kf).to(device), kz, K, kc)
     np.testing.assert_array_equal(got.per_view, expect.per_view)
     np.testing.assert_array_equal(got.valid, expect.valid)
-
-
-def test_a_zero_feature_vector_has_similarity_zero_in_torch_too():
-    import torch
-
-    from senerf.selftrain.reliability import _lookup_similarity_torch
-
-    feats = np.zeros((2, 2, 3), np.float32)
-    feats[0, 0] = (1.0, 2.0, 2.0)
-    src = torch.tensor([[0.0, 0.0, 0.0], [2.0, 4.0, 4.0]])
-    uv = np.array([[0.5, 0.5], [0.5, 0.5]])
-    assert _lookup_similarity_torch(src, np.array([0, 1]), feats, uv).tolist() == pytest.approx([0.0, 1.0])
-    assert _lookup_similarity_torch(src, np.array([1]), feats, np.array([[1.5, 1.5]])).tolist() == [0.0]

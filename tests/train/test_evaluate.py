@@ -1,5 +1,6 @@
-"""render_views, evaluate and depth_to_color with an empty field, whose renders are known exactly
-(senerf/train/evaluate.py; mutation audit)."""
+"""Rendering cameras and scoring test views (senerf/train/evaluate.py) with an empty field, whose renders are known
+exactly: the background, the far bound's camera z-depth, the ground truth composited onto the evaluation
+background, and the depth colour map."""
 
 from __future__ import annotations
 
@@ -9,10 +10,11 @@ import numpy as np
 import pytest
 import torch
 
+from senerf.config import ModelConfig
+from senerf.data import Scene
 from senerf.fields import RadianceField
 from senerf.geometry import Intrinsics, look_at
-from senerf.train import ModelConfig
-from senerf.train.evaluate import depth_to_color, evaluate, render_views
+from senerf.train import depth_to_color, eval_images, evaluate, render_views
 
 K = Intrinsics(20.0, 25.0, 7.0, 6.5, 14, 12)   # principal point off the centre: z_per_dist varies
 
@@ -56,8 +58,6 @@ def test_evaluate_composites_the_ground_truth_on_the_eval_background(tmp_path):
     # truth of its position in test_idx instead of its scene index, PNGs not written.
     # View 0 is transparent (ground truth white on white), view 1 opaque grey 0.3: the white render is off
     # by 0.7 everywhere, PSNR = 10 log10(1 / 0.49) = 3.0980392 dB.
-    from senerf.data import Scene
-
     c2w = np.stack([look_at(np.array([0.0, -4.0, 0.0]), np.zeros(3)), look_at(np.array([4.0, 0.0, 0.0]), np.zeros(3))])
     alpha = np.zeros((2, 12, 14), np.float32)
     alpha[1] = 1.0
@@ -78,59 +78,21 @@ def test_evaluate_composites_the_ground_truth_on_the_eval_background(tmp_path):
     assert black["per_view"]["psnr"][1] == pytest.approx(10 * math.log10(1 / 0.09), abs=1e-5)
 
 
-def test_an_interrupted_evaluation_resumes_at_its_first_missing_view(tmp_path, render_spy):
-    # Catches: finished views rendered again after an interruption (200 views at 400x400 take ~20 min), figures
-    # differing from an uninterrupted call's, the interrupted call's seconds lost, a record of another field or
-    # of other test views reused, a view whose PNGs were deleted not rendered again.
-    import dataclasses
-    import json
+def test_renders_are_clipped_to_0_1_before_they_are_scored():
+    # Catches: a colour beyond [0, 1] (a field's raw output, a background of 1 plus a colour) scored and written
+    # as it is: a render of 1.5 against a white photo must score as the white it is written as.
+    class Bright(RadianceField):
+        def density(self, xyz):
+            return torch.full((xyz.shape[0],), 1e3, dtype=xyz.dtype)
 
-    from senerf.data import Scene
-    from senerf.train import build_field
+        def forward(self, xyz, dirs):
+            return self.density(xyz), torch.full((xyz.shape[0], 3), 1.5, dtype=xyz.dtype)
 
-    rng = np.random.default_rng(0)
-    c2w = np.stack([look_at(np.array([4 * math.cos(a), 4 * math.sin(a), 1.0]), np.zeros(3))
-                    for a in np.linspace(0, 2, 5)])
-    scene = Scene(name="e", root=".", rgb=rng.random((5, 12, 14, 3)).astype(np.float32), alpha=None, intrinsics=K,
-                  intrinsics_all=(K,) * 5, c2w=c2w, image_paths=tuple(f"{i}.png" for i in range(5)))
-    model = _model("black")
-    field = build_field(model, seed=0).eval()
-    test_idx = [4, 0, 2, 3]
-    whole = evaluate(field, scene, test_idx, tmp_path / "whole", model, progress=False)
-    assert whole["seconds_before"] == 0.0
-
-    record = tmp_path / "eval.json"
-    render_spy.calls, render_spy.stop_at = 0, 3
-    with pytest.raises(KeyboardInterrupt):
-        evaluate(field, scene, test_idx, tmp_path / "run", model, progress=False, resume=record)
-    kept = json.loads(record.read_text())
-    assert sorted(kept["views"]) == ["0", "1"] and kept["seconds"] > 0
-    render_spy.calls, render_spy.stop_at = 0, None
-    again = evaluate(field, scene, test_idx, tmp_path / "run", model, progress=False, resume=record)
-    assert render_spy.calls == 2   # views 2 and 3 only
-    assert again["per_view"] == whole["per_view"] and again["psnr"] == whole["psnr"] and again["ssim"] == whole["ssim"]
-    assert again["seconds_before"] == kept["seconds"] and again["seconds"] > kept["seconds"]
-    for k in range(4):
-        name = f"rgb_{k:03d}.png"
-        assert (tmp_path / "run" / name).read_bytes() == (tmp_path / "whole" / name).read_bytes()
-    # a deleted render is made again; the others are not
-    (tmp_path / "run" / "depth_001.png").unlink()
-    render_spy.calls = 0
-    assert evaluate(field, scene, test_idx, tmp_path / "run", model, progress=False, resume=record)["per_view"] \
-        == whole["per_view"]
-    assert render_spy.calls == 1 and (tmp_path / "run" / "depth_001.png").is_file()
-    # the record now holds all four views: the same evaluation renders nothing (no PNGs asked for), while another
-    # field, other test views or a test photo changed are not its evaluation, and every view is rendered
-    finished = record.read_bytes()
-    edited = dataclasses.replace(scene, rgb=scene.rgb.copy())
-    edited.rgb[3, 5, 5] += 0.01
-    for other_field, other_scene, other_idx, renders in ((field, scene, test_idx, 0),
-                                                         (build_field(model, seed=1).eval(), scene, test_idx, 4),
-                                                         (field, scene, [4, 0, 2, 1], 4), (field, edited, test_idx, 4)):
-        record.write_bytes(finished)
-        render_spy.calls = 0
-        evaluate(other_field, other_scene, other_idx, None, model, progress=False, resume=record)
-        assert render_spy.calls == renders
+    scene = Scene(name="w", root=".", rgb=np.ones((1, 12, 14, 3), np.float32), alpha=None, intrinsics=K,
+                  intrinsics_all=(K,), c2w=look_at(np.array([0.0, -4.0, 0.0]), np.zeros(3))[None],
+                  image_paths=("a.png",))
+    assert render_views(Bright(), _model("black"), K, scene.c2w)["rgb"].max() > 1.4
+    assert evaluate(Bright(), scene, [0], None, _model("black"), progress=False)["psnr"] == math.inf
 
 
 def test_depth_to_color_near_is_red_far_is_blue_and_empty_fades():
@@ -151,9 +113,6 @@ def test_depth_to_color_near_is_red_far_is_blue_and_empty_fades():
 
 
 def test_eval_images_composites_only_the_views_asked_for():
-    from senerf.data import Scene
-    from senerf.train import eval_images
-
     c2w = np.stack([look_at(np.array([0.0, -4.0, 0.0]), np.zeros(3))] * 3)
     rgb = np.stack([np.full((12, 14, 3), v, np.float32) for v in (0.2, 0.4, 0.6)])
     alpha = np.stack([np.full((12, 14), a, np.float32) for a in (0.0, 0.5, 1.0)])
@@ -167,3 +126,20 @@ def test_eval_images_composites_only_the_views_asked_for():
     opaque = Scene(name="o", root=".", rgb=rgb, alpha=None, intrinsics=K, intrinsics_all=(K, K, K), c2w=c2w,
                    image_paths=("a.png", "b.png", "c.png"))
     np.testing.assert_array_equal(eval_images(opaque, [1], _model("white"))[0], rgb[1])   # no alpha: as loaded
+
+
+def test_renders_and_scores_refuse_inputs_of_the_wrong_shape():
+    # Catches: a pose, depth or test-view list of the wrong shape failing later, elsewhere, or scoring NaN (a
+    # mean over no views).
+    for shape in [(16,), (1, 3, 4), (2, 2, 4, 4)]:
+        with pytest.raises(ValueError, match="c2w"):
+            render_views(EmptyField(), _model("white"), K, np.zeros(shape))
+    for z_shape, acc_shape in [((4,), (4,)), ((2, 2), (2, 3)), ((1, 2, 2), (1, 2, 2))]:
+        with pytest.raises(ValueError, match="z_depth"):
+            depth_to_color(np.ones(z_shape), np.ones(acc_shape))
+    assert depth_to_color(np.ones((1, 1)), np.ones((1, 1))).shape == (1, 1, 3)
+    scene = Scene(name="e", root=".", rgb=np.zeros((1, 12, 14, 3), np.float32), alpha=None, intrinsics=K,
+                  intrinsics_all=(K,), c2w=look_at(np.array([0.0, -4.0, 0.0]), np.zeros(3))[None],
+                  image_paths=("a.png",))
+    with pytest.raises(ValueError, match="test views"):
+        evaluate(EmptyField(), scene, [], None, _model("white"), progress=False)

@@ -1,4 +1,5 @@
-"""PSNR and SSIM (senerf/train/metrics.py) against hand-computed values and an independent SSIM."""
+"""PSNR and SSIM (senerf/train/metrics.py) against hand-computed values and an independent SSIM (SciPy's Gaussian
+filter)."""
 
 from __future__ import annotations
 
@@ -55,16 +56,28 @@ def test_ssim_matches_independent_gaussian_implementation():
     assert ours == pytest.approx(_ssim_reference(a, b), abs=1e-6)
 
 
-def test_ssim_rejects_mismatched_or_tiny_images():
-    with pytest.raises(ValueError):
-        ssim(np.zeros((8, 8, 3)), np.zeros((8, 9, 3)))
-    with pytest.raises(ValueError):
-        ssim(np.zeros((5, 5, 3)), np.zeros((5, 5, 3)))
+def test_ssim_refuses_images_smaller_than_its_window():
     # skimage's Gaussian window (sigma 1.5, truncated at 3.5 sigma) is 2 * int(3.5 * 1.5 + 0.5) + 1 = 11 wide:
-    # 10 px must be refused by our check (it was 7, so skimage's own error came out, so at 71d19d4), 11 px works
-    with pytest.raises(ValueError, match="at least 11x11"):
-        ssim(np.zeros((10, 12, 3)), np.zeros((10, 12, 3)))
+    # 10 px is refused by our check (not skimage's own error), 11 px works
+    for shape in [(5, 5, 3), (10, 12, 3), (12, 10)]:
+        with pytest.raises(ValueError, match="11"):
+            ssim(np.zeros(shape), np.zeros(shape))
     assert ssim(np.full((11, 11, 3), 0.5), np.full((11, 11, 3), 0.5)) == pytest.approx(1.0)
+
+
+@pytest.mark.parametrize("metric", [mse, psnr, ssim])
+def test_metrics_take_h_w_or_h_w_1_or_3_and_refuse_other_shapes(metric):
+    # Catches: the image-shape check deleted (or one of its channel counts changed), two images of different
+    # shapes compared by broadcasting.
+    for shape in [(11,), (11, 11, 2), (11, 11, 4), (1, 11, 11, 3)]:
+        with pytest.raises(ValueError):
+            metric(np.zeros(shape), np.zeros(shape))
+    with pytest.raises(ValueError):
+        metric(np.zeros((11, 11, 3)), np.zeros((11, 12, 3)))
+    for shape in [(11, 11), (11, 11, 1), (11, 11, 3)]:
+        a, b = np.zeros(shape), np.full(shape, 0.5)
+        want = {mse: 0.25, psnr: 10 * np.log10(4), ssim: (0.0 + 1e-4) / (0.25 + 1e-4)}[metric]
+        assert metric(a, b) == pytest.approx(want, rel=1e-9)
 
 
 def test_psnr_and_ssim_honour_data_range():

@@ -1,4 +1,4 @@
-"""Analytic test fields shared by the tests of senerf.fields."""
+"""Analytic radiance fields (no parameters) shared by the tests of senerf.fields."""
 
 from __future__ import annotations
 
@@ -25,3 +25,18 @@ class BallField(RadianceField):
 
     def forward(self, xyz, dirs):
         return self.density(xyz), self.rgb.to(xyz.dtype).expand(xyz.shape[0], 3)
+
+
+class ConstantField(RadianceField):
+    """Density ``value`` and colour ``rgb`` everywhere."""
+
+    def __init__(self, value=0.5, rgb=(0.2, 0.4, 0.6)):
+        super().__init__()
+        self.value = value
+        self.colour = torch.tensor(rgb)
+
+    def density(self, xyz):
+        return torch.full((xyz.shape[0],), self.value, dtype=xyz.dtype)
+
+    def forward(self, xyz, dirs):
+        return self.density(xyz), self.colour.to(xyz.dtype).expand(xyz.shape[0], 3)

@@ -1,0 +1,35 @@
+"""Tests of senerf/fields/interp.py: the plane layout and bilinear interpolation by hand."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+
+from senerf.fields.interp import plane_interp, plane_interp_reference, plane_layout
+
+
+def test_plane_layout_by_hand_and_refuses_planes_of_fewer_than_two_texels():
+    assert plane_layout((2, 3)) == ([0, 4, 8, 12, 21, 30], 39)   # 3 planes of 2x2, then 3 of 3x3
+    with pytest.raises(ValueError, match="resolution: every plane needs at least 2 texels per side, got 1"):
+        plane_layout((4, 1))
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_plane_interp_by_hand_on_2x2_planes(dtype):
+    # One scale of three 2x2 planes, one feature; plane p holds texels (a, b) at row b * 2 + a:
+    # xy = [[1, 2], [3, 4]] (rows b), xz = 10 x that, yz = 100 x that.  u = (x, y, z) in [-1, 1]^3 maps to
+    # texel coordinates (x + 1) / 2 etc.  At u = (0, -1, 0.5): xy at (0.5, 0) -> 1.5; xz at (0.5, 0.75) ->
+    # 10 (1.5 + 0.75 * 2) = 30; yz at (0, 0.75) -> 100 (1 + 0.75 * 2) = 250.
+    offsets, rows = plane_layout((2,))
+    table = torch.cat([torch.tensor([[1.0], [2.0], [3.0], [4.0]]) * m for m in (1, 10, 100)]).to(dtype)
+    u = torch.tensor([[0.0, -1.0, 0.5], [-1.0, -1.0, -1.0]], dtype=dtype)
+    out = plane_interp(table, u, (2,), offsets)
+    assert out.shape == (2, 1, 3, 1) and rows == 12
+    torch.testing.assert_close(out[:, 0, :, 0], torch.tensor([[1.5, 30.0, 250.0], [1.0, 10.0, 100.0]], dtype=dtype))
+    planes = [table[o:o + 4].view(2, 2, 1).permute(2, 0, 1) for o in offsets]
+    torch.testing.assert_close(plane_interp_reference(planes, u), out)
+
+
+def test_the_grid_sample_reference_takes_zero_points():
+    planes = [torch.rand(4, 5, 5) for _ in range(6)]   # two scales x three planes, four features
+    assert plane_interp_reference(planes, torch.zeros(0, 3)).shape == (0, 2, 3, 4)
