@@ -7,12 +7,11 @@ from pathlib import Path
 
 import pytest
 
-# torch's OpenMP workers spin while waiting; on a shared 2-core machine that makes small ops 10-100x
-# slower (measured: a plane-TV step 2.9 s -> 0.03 s). The tests keep sleeping waits (0 spins) whatever else runs;
-# senerf-fit and senerf-render spin 1000 times first (cliargs.short_openmp_waits), which a test calling their main
-# before torch is imported would otherwise set for the whole test process.
+# torch's OpenMP workers wait as senerf-fit's do (cliargs.short_openmp_waits: 1000 spins, then sleep), set here
+# before anything imports torch: libgomp's default of ~3 ms of spinning makes small ops many times slower on a
+# shared 2-core machine, and sleeping at once costs a fit about a quarter of its time.
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
-os.environ.setdefault("GOMP_SPINCOUNT", "0")
+os.environ.setdefault("GOMP_SPINCOUNT", "1000")
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
 
