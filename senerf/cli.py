@@ -48,8 +48,10 @@ def build_parser() -> OneLineParser:
                         "with a test split: 3 views spread over the train split; else llff: every 8th image tests)")
     g.add_argument("--test-views", type=int_flag("--test-views"), metavar="N",
                    help="score on N of the test views, spread evenly (default: all, as published tables)")
-    g.add_argument("--scene-kind", choices=("object", "forward-facing"),
-                   help="COLMAP scenes: fit as an object or as a forward-facing (LLFF, NDC) capture")
+    g.add_argument("--scene-kind", choices=("unbounded", "object", "forward-facing"),
+                   help="fit as an unbounded scene (RGB photos with background), an object in a box (photos with "
+                        "alpha) or a forward-facing (NDC) capture (LLFF, COLMAP); default: from the photos and "
+                        "cameras")
     g.add_argument("--downscale", type=float_flag("--downscale", 1.0),
                    help="image downscale factor (default 1; LLFF: 8, relative to full resolution)")
     t = p.add_argument_group("training")

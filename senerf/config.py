@@ -152,6 +152,8 @@ class TrainConfig(_Checked):
         warmup_steps: linear warm-up steps before the cosine decay.
         lr_final_factor: the cosine schedule ends at ``lr * lr_final_factor``.
         tv_weight: weight of ``field.regularizer()`` (plane total variation) in the loss.
+        distortion_weight: weight of the distortion loss (:func:`senerf.fields.bin_distortion`) of a contracted
+            (unbounded) field's rays; other fields have none.
         occupancy_every: steps between occupancy-grid updates (object scenes with a grid).
         occupancy_warmup: steps before the first grid update (the grid starts all-occupied).
         checkpoint_every: steps between atomic checkpoints (0: only at the end).
@@ -166,6 +168,7 @@ class TrainConfig(_Checked):
     warmup_steps: int = _setting(50, _integer(0))
     lr_final_factor: float = _setting(0.05, _real(0, 1))
     tv_weight: float = _setting(0.1, _real(0))
+    distortion_weight: float = _setting(0.01, _real(0))
     occupancy_every: int = _setting(8, _integer(0))
     occupancy_warmup: int = _setting(16, _integer(0))
     checkpoint_every: int = _setting(500, _integer(0))
@@ -184,8 +187,13 @@ class ModelConfig(_Checked):
             :attr:`frame_origin`, so float32 keeps its precision in scenes far from the world origin.
         ndc: a forward-facing scene rendered in normalised device coordinates (the LLFF convention).
         ndc_near: world-space near plane of the NDC warp (``ndc`` only).
+        contract: an unbounded scene: ``aabb`` is the inner region, kept as it is, and all of space beyond it is
+            contracted into the field (mip-NeRF 360's contraction in the L-infinity norm); the rays run from
+            ``near`` to ``far`` with samples spaced evenly in contracted space.
         near, far: constant ray bounds, or None to clip every ray to ``aabb`` (ignored in NDC, where every ray
-            spans ``t' in [0, 1]``).
+            spans ``t' in [0, 1]``; required with ``contract``).
+        bound: with ``contract``, a world box the scene lies in (instant-ngp's ``aabb_scale``), or None: every
+            ray is clipped to it as well.
         resolution: base plane resolution (K-Planes) per axis.
         multires: resolution multipliers of the plane scales.
         n_features: features per plane.
@@ -204,6 +212,8 @@ class ModelConfig(_Checked):
     aabb: tuple = _setting(((-1.5, -1.5, -1.5), (1.5, 1.5, 1.5)), _aabb)
     ndc: bool = _setting(False, _flag)
     ndc_near: float = _setting(1.0, _real(0, open_low=True))
+    contract: bool = _setting(False, _flag)
+    bound: tuple | None = _setting(None, _optional(_aabb))
     near: float | None = _setting(None, _optional(_real(0)))
     far: float | None = _setting(None, _optional(_real(0)))
     resolution: int = _setting(64, _integer(1))
@@ -222,6 +232,11 @@ class ModelConfig(_Checked):
     def _relations(self) -> None:
         if (self.near is None) != (self.far is None) or (self.near is not None and not self.near < self.far):
             raise InputError(f"give both near < far, or neither; got {self.near!r}, {self.far!r}", field="near/far")
+        if self.contract and (self.ndc or self.near is None or not self.near > 0):
+            raise InputError("a contracted (unbounded) field is rendered in world units from a near bound > 0 to a "
+                             f"far bound; got ndc={self.ndc}, near={self.near!r}", field="contract")
+        if self.bound is not None and not self.contract:
+            raise InputError("bounds the rays of a contracted (unbounded) field only", field="bound")
 
     @property
     def frame_origin(self) -> tuple[float, float, float]:
@@ -249,8 +264,16 @@ class ModelConfig(_Checked):
     def field_aabb(self) -> tuple[tuple[float, float, float], tuple[float, float, float]]:
         """``aabb`` in the model frame (``aabb - frame_origin``): what the fields and the grid are built with and
         what the rays are clipped to."""
+        return self._in_model_frame(self.aabb)
+
+    @property
+    def field_bound(self) -> tuple | None:
+        """``bound`` in the model frame, or None."""
+        return None if self.bound is None else self._in_model_frame(self.bound)
+
+    def _in_model_frame(self, box: tuple) -> tuple:
         origin = self.frame_origin
-        return tuple(tuple(v - o for v, o in zip(row, origin)) for row in self.aabb)
+        return tuple(tuple(v - o for v, o in zip(row, origin)) for row in box)
 
 
 @dataclass(frozen=True)

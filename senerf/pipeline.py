@@ -234,7 +234,8 @@ def fit(scene_dir, out=None, *, protocol: str | None = None, views=None, n_views
         views: training view indices (protocol ``views``); n_views: the number of views (``llff``, ``spread``,
             ``random8``); test_views: score on this many of the test views, spread evenly (default: all).
         downscale: image downscale factor (default 1; LLFF: 8, as LLFF's ``factor``).
-        scene_kind: ``object`` or ``forward_facing``, for a COLMAP capture (default: from the cameras' spread).
+        scene_kind: ``object``, ``forward_facing`` or ``unbounded`` instead of the kind chosen from the format, the
+            photos and the cameras (:func:`senerf.data.load_scene`).
         preset: ``fast`` or ``balanced`` (:data:`senerf.config.PRESETS`): steps, rays per step and iterations.
         iterations: self-training iterations after the teacher (default: the preset's).
         seed: seeds the fields, the ray batches and the pseudo views.
@@ -262,25 +263,27 @@ def fit(scene_dir, out=None, *, protocol: str | None = None, views=None, n_views
     root = scene_root(scene_dir)
     fmt = detect_format(root)
     downscale = downscale if downscale is not None else (8.0 if fmt == "llff" else 1.0)
-    if scene_kind is not None and fmt != "colmap":
-        raise InputError(f"applies to COLMAP scenes only; {root} is a {fmt} scene", field="--scene-kind")
     model = dict(model or {})
     train_cfg = PRESETS[preset].train_config(seed=seed, device=device, **(train or {}))
     st_cfg = SelfTrainConfig(**{"iterations": PRESETS[preset].iterations if iterations is None else iterations,
                                 "seed": seed, **(selftrain or {})})
     echo(f"fit: reading {root} ({fmt}, downscale {downscale:g})")
-    scene = load_scene(root, downscale=downscale, kind=scene_kind)
+    try:
+        scene = load_scene(root, downscale=downscale, kind=scene_kind)
+    except InputError as exc:   # the kind is a flag here
+        if exc.field != "kind":
+            raise
+        raise InputError(exc.problem, file=exc.file, field="--scene-kind") from None
     if "aabb" in model and scene.kind == "forward_facing":
         raise InputError("a forward-facing scene is fitted in NDC, whose box is fixed; --aabb (a box in world units) "
-                         "applies to object scenes", file=root, field="--aabb")
+                         "applies to object and unbounded scenes", file=root, field="--aabb")
     split = _split(scene, fmt, protocol, views, n_views, test_views, seed)
     more = " ..." if len(split.train_idx) > 12 else ""
     echo(f"fit: scene {scene.name} ({fmt}, {scene.size[1]}x{scene.size[0]}), protocol {split.protocol}: "
          f"{len(split.train_idx)} training views {split.train_idx[:12].tolist()}{more} "
          f"({', '.join(view_names(scene, split.train_idx[:12]))}{more}), {len(split.test_idx)} test views")
-    if fmt == "colmap":
-        echo(f"fit: fitted as {scene.kind.replace('_', '-')} "
-             f"({'--scene-kind' if scene_kind else 'from the cameras; --scene-kind to choose'})")
+    echo(f"fit: fitted as {scene.kind.replace('_', '-')}: {scene.kind_reason}"
+         + ("" if scene_kind else " (--scene-kind to choose)"))
     model_cfg = choose_model(scene, split.train_idx, model, echo=echo)
     preflight(scene, split, model_cfg, train_cfg, st_cfg)
 
@@ -294,8 +297,8 @@ def fit(scene_dir, out=None, *, protocol: str | None = None, views=None, n_views
     scene_files = scene_file_digests(scene, np.union1d(split.train_idx, split.test_idx))
     from senerf.runfolder import prepare_run_folder
 
-    prepare_run_folder(out, dict(scene_dir=str(Path(root).resolve()), scene_files=scene_files, settings=settings),
-                       overwrite, echo)
+    prepare_run_folder(out, dict(scene_dir=str(Path(root).resolve()), scene_files=scene_files, settings=settings,
+                                 scene_kind_reason=scene.kind_reason), overwrite, echo)
     echo(f"fit: writing to {out}")
     config = dict(scene_dir=str(Path(root).resolve()), format=fmt, downscale=downscale, protocol=split.protocol,
                   views=views, n_views=n_views, test_views=test_views, preset=preset, scene_kind=scene.kind,

@@ -33,6 +33,7 @@ RULES = {
         "warmup_steps": ("int", [-1], [0]),
         "lr_final_factor": ("real", [-0.01, 1.01], [0.0, 1.0]),
         "tv_weight": ("real", [-1e-6], [0.0]),
+        "distortion_weight": ("real", [-1e-6], [0.0]),
         "occupancy_every": ("int", [-1], [0]),
         "occupancy_warmup": ("int", [-1], [0]),
         "checkpoint_every": ("int", [-1], [0]),
@@ -45,6 +46,8 @@ RULES = {
         "aabb": ("box", [], []),   # tried apart: test_a_box_is_two_corners_with_every_max_above_its_min
         "ndc": ("flag", [], [True, False]),
         "ndc_near": ("real", [0.0, -1.0], [1e-9]),
+        "contract": ("flag", [], [False]),   # True needs near/far: test_a_contracted_field_needs_metric_ray_bounds
+        "bound": ("box", [], []),   # tried apart: test_a_contracted_field_needs_metric_ray_bounds
         "near": ("real", [-0.1], []),   # None is "no constant bounds"; near/far are tried as a pair below
         "far": ("real", [-0.1], []),
         "resolution": ("int", [0], [1]),
@@ -159,6 +162,17 @@ def test_a_box_is_two_corners_with_every_max_above_its_min(aabb):
     # Catches: a malformed box failing as a TypeError / IndexError / NumPy error instead of the field's one line,
     # a bool or a non-finite corner taken as a number, a box of no or negative width accepted.
     _refused(lambda v: ModelConfig(aabb=v), aabb, "aabb")
+
+
+def test_a_contracted_field_needs_metric_ray_bounds_and_only_it_takes_a_bound():
+    # Catches: an unbounded field accepted without a near bound > 0 (its contracted bins start at ``near``) or in
+    # NDC, a scene bound silently ignored by a bounded field, a malformed bound let through.
+    for bad in ({}, {"near": 0.0, "far": 5.0}, {"ndc": True, "near": 0.5, "far": 5.0}):
+        _refused(lambda v: ModelConfig(contract=True, **v), bad, "contract")
+    _refused(lambda v: ModelConfig(bound=v), ((-1, -1, -1), (1, 1, 1)), "bound")
+    _refused(lambda v: ModelConfig(contract=True, near=0.1, far=9.0, bound=v), ((1, 1, 1), (0, 0, 0)), "bound")
+    ok = ModelConfig(contract=True, near=0.1, far=9.0, bound=[[-2, -2, -2], [2, 2, 2]])
+    assert ok.bound == ((-2.0, -2.0, -2.0), (2.0, 2.0, 2.0)) and ok.field_bound == ok.bound
 
 
 def test_a_box_of_numpy_numbers_or_an_array_is_stored_as_nested_tuples_of_floats():

@@ -43,7 +43,8 @@ def test_a_fit_writes_the_documented_run_folder_and_the_same_call_resumes_it(tin
     assert row["lpips"] == row["avg"] == "unavailable" and row["reliable_fraction"] is None
     assert row["psnr"] == pytest.approx(np.mean(row["per_view"]["psnr"]))
     run = json.loads((out / "run.json").read_text())
-    assert set(run) == {"senerf_run", "senerf_version", "scene_dir", "scene_files", "settings"}
+    assert set(run) == {"senerf_run", "senerf_version", "scene_dir", "scene_files", "settings", "scene_kind_reason"}
+    assert run["scene_kind_reason"].startswith("photos with alpha")
     assert set(run["settings"]) == {"downscale", "scene_kind", "train_views", "test_views", "train", "model",
                                     "selftrain"}
     assert "device" not in run["settings"]["train"] and "iterations" not in run["settings"]["selftrain"]
@@ -151,7 +152,8 @@ def _bad_camera_positions(scene, position):
     (dict(views=[0], iterations=1), "1 training view has no such point"),
     (dict(model=dict(field="nerf", hidden=64)), "hidden: sets the K-Planes field"),
     (dict(protocol="spread", test_views=3), "--test-views"),
-    (dict(scene_kind="object"), "--scene-kind: applies to COLMAP scenes only"),
+    (dict(scene_kind="forward_facing"), "--scene-kind: a forward-facing (NDC) fit needs the depth bounds"),
+    (dict(scene_kind="inside_out"), "--scene-kind: expected one of"),
     (dict(device="cuda:x"), "--device"),
     (dict(preset="slow"), "--preset"),
     (dict(selftrain=dict(empty_opacity=0.7)), "empty_opacity: must be <= opacity_threshold"),
@@ -235,13 +237,23 @@ def _colmap_writers():
 
 
 def test_colmap_captures_choose_their_kind_and_an_object_with_a_background_is_warned_about(tmp_path):
+    # Catches: an RGB capture around something fitted as a box over black (the default must be unbounded), the
+    # choice or its reason missing from run.json, an impossible kind accepted, a forward-facing capture not in NDC.
     writers = _colmap_writers()
     ring, _ = writers.ring_scene(tmp_path / "bg", True, np.arange(0, 360, 30), far_points=60)
-    with pytest.warns(UserWarning, match="60% of the capture's 100 3D points lie outside the box"):
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")   # an unbounded fit models the points outside the box
         senerf.fit(ring, tmp_path / "o1", **SMALL)
-    assert json.loads((tmp_path / "o1" / "run.json").read_text())["settings"]["scene_kind"] == "object"
-    with pytest.raises(InputError, match="different run"):   # another kind of the same capture is another run
-        senerf.fit(ring, tmp_path / "o1", scene_kind="forward_facing", **SMALL)
+    run = json.loads((tmp_path / "o1" / "run.json").read_text())
+    assert run["settings"]["scene_kind"] == "unbounded" and "background in every pixel" in run["scene_kind_reason"]
+    with pytest.raises(InputError, match="different run"), pytest.warns(UserWarning):   # another kind: another run
+        senerf.fit(ring, tmp_path / "o1", scene_kind="object", **SMALL)
+    with pytest.warns(UserWarning, match="60% of the capture's 100 3D points lie outside the box"):
+        senerf.fit(ring, tmp_path / "o4", scene_kind="object", **SMALL)
+    assert json.loads((tmp_path / "o4" / "run.json").read_text())["scene_kind_reason"] == "chosen with --scene-kind"
+    with pytest.raises(InputError, match="--scene-kind: the cameras look up to 70 degrees"):
+        senerf.fit(ring, tmp_path / "o5", scene_kind="forward_facing", **SMALL)
+    assert not (tmp_path / "o5").exists()
     front, _ = writers.ring_scene(tmp_path / "ff", True, [0, 5, 10, 15, 20], far_points=60)
     with warnings.catch_warnings():
         warnings.simplefilter("error")   # no box to check the points against in NDC

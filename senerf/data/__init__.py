@@ -10,12 +10,12 @@ from .colmap import load_colmap
 from .fewshot import EXTREME_VIEWS, INFONERF4_VIEWS, PROTOCOLS, fewshot_split, spread_views
 from .llff import load_llff
 from .load import detect_format, load_scene, scene_root
-from .scene import Scene, changed_files, scene_file_digests, view_names
+from .scene import SCENE_KINDS, Scene, changed_files, scene_file_digests, view_names
 from .undistort import (COVERAGE_WARN, Distortion, distort_pixels, photo_coverage, undistort_image,
                         undistorted_intrinsics, undistortion_maps)
 
 __all__ = [
-    "Scene", "scene_file_digests", "changed_files", "view_names",
+    "Scene", "SCENE_KINDS", "scene_file_digests", "changed_files", "view_names",
     "load_scene", "detect_format", "scene_root", "load_blender", "load_ngp", "load_llff", "load_colmap",
     "fewshot_split", "spread_views", "EXTREME_VIEWS", "INFONERF4_VIEWS", "PROTOCOLS",
     "Distortion", "distort_pixels", "undistorted_intrinsics", "undistortion_maps", "undistort_image",

@@ -18,6 +18,10 @@
 Every camera and distortion field may be given at the top level or per frame; a frame's value, ``null``
 excepted, wins over the file's, key by key (per-frame intrinsics).
 
+* **Scene bound** (instant-ngp): ``aabb_scale`` (a positive number; instant-ngp uses powers of two) says the scene
+  lies in a cube ``aabb_scale`` times instant-ngp's unit cube, which is ``[0, 1]^3`` after ``p * scale + offset``
+  (defaults 0.33 and 0.5 per axis): ``Scene.bound`` is that cube in the file's world coordinates.
+
 Convention:
     ``transform_matrix`` is camera-to-world in the OpenGL camera convention (x right, y up, looking
     along -z); it is converted here, once, with :func:`senerf.geometry.opengl_to_opencv`.  ``file_path``
@@ -26,6 +30,7 @@ Convention:
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import warnings
 from pathlib import Path
@@ -218,4 +223,21 @@ def load_ngp(root: Path, downscale: float = 1.0) -> Scene:
     if missing:
         warnings.warn(f"{file}: skipped {len(missing)} frame(s) whose image is missing: {', '.join(missing)}",
                       stacklevel=2)
-    return _scene(root, entries, downscale, {s: np.asarray(v, np.int64) for s, v in split_idx.items()})
+    scene = _scene(root, entries, downscale, {s: np.asarray(v, np.int64) for s, v in split_idx.items()})
+    bound = _ngp_bound(meta, file)
+    return scene if bound is None else dataclasses.replace(scene, bound=bound)
+
+
+def _ngp_bound(meta: dict, file: Path) -> tuple | None:
+    """The world box of instant-ngp's ``aabb_scale`` (module docstring), or None without one."""
+    if meta.get("aabb_scale") is None:
+        return None
+    size = _io.as_number(meta["aabb_scale"], file, "aabb_scale", positive=True)
+    scale = _io.as_number(meta.get("scale", 0.33), file, "scale", positive=True)
+    offset = meta.get("offset", 0.5)
+    offset = offset if isinstance(offset, list) else [offset] * 3
+    if len(offset) != 3:
+        raise InputError(f"expected a number or 3 numbers, got {meta.get('offset')!r:.40}", file=file, field="offset")
+    offset = np.array([_io.as_number(v, file, "offset") for v in offset])
+    lo, hi = (0.5 - size / 2 - offset) / scale, (0.5 + size / 2 - offset) / scale
+    return tuple(map(float, lo)), tuple(map(float, hi))

@@ -12,8 +12,8 @@ pixel).  Views are the registered images sorted by name (LLFF's order), at ``1 /
 size, split as LLFF's (:func:`~senerf.data.llff.llff_splits`).
 
 Kind: **forward-facing** when every camera and ray looks close to the cameras' mean viewing direction
-(:func:`view_spread`), else **object** (a capture around something, kept in COLMAP's world frame).  A
-forward-facing scene is normalised as :func:`load_llff` normalises LLFF (``bd_factor``, ``recenter``); its
+(:func:`view_spread`), else **unbounded** (a capture around something, background in every photo, kept in
+COLMAP's world frame), or **object** for photos with alpha.  A forward-facing scene is normalised as :func:`load_llff` normalises LLFF (``bd_factor``, ``recenter``); its
 per-image depth bounds are what LLFF's ``imgs2poses`` takes, the 0.1th and 99.9th percentiles of the depths of
 the 3D points each image sees, and it needs one camera (NDC is built from one focal length).
 
@@ -36,7 +36,7 @@ from ..errors import InputError
 from ..geometry import Intrinsics
 from . import _io
 from .llff import folder_factor, llff_image_folder, llff_splits, normalise_forward_facing
-from .scene import Scene
+from .scene import SCENE_KINDS, Scene
 from .undistort import FISHEYE_MODELS, PERSPECTIVE_MODELS, Distortion
 
 __all__ = ["load_colmap", "colmap_model_folder", "view_spread", "read_cameras", "read_images", "read_points3d",
@@ -326,16 +326,17 @@ def load_colmap(root: Path, downscale: float = 1.0, bd_factor: float | None = 0.
         root: the scene folder (``sparse/0/`` and ``images/`` inside).
         downscale: divide image sides by this (``>= 1``).
         bd_factor, recenter: LLFF's normalisation of a forward-facing capture (:func:`load_llff`).
-        kind: ``None`` to decide from :func:`view_spread`, or ``'object'`` / ``'forward_facing'`` (the latter
-            refused when a ray turns 90 degrees or more from the mean direction: NDC cannot hold it).
+        kind: ``None`` to decide as the module docstring says, or one of :data:`~senerf.data.SCENE_KINDS`
+            (``'forward_facing'`` is refused when a ray turns 90 degrees or more from the mean direction: NDC
+            cannot hold it).
 
     Raises:
         InputError: naming the file and field (a bad model file or camera model, a missing or mis-sized image; a
             forward-facing capture with several cameras or an image that sees no point).
     """
     root = Path(root)
-    if kind not in (None, "object", "forward_facing"):
-        raise InputError(f"expected 'object' or 'forward_facing', got {kind!r}", field="kind")
+    if kind is not None and kind not in SCENE_KINDS:
+        raise InputError(f"expected one of {', '.join(SCENE_KINDS)}, got {kind!r}", field="kind")
     cam_file, img_file = _model_file(root, "cameras"), _model_file(root, "images")
     cameras = read_cameras(cam_file)
     images = sorted(read_images(img_file), key=lambda im: im.name)
@@ -373,16 +374,26 @@ def load_colmap(root: Path, downscale: float = 1.0, bd_factor: float | None = 0.
     k0 = entries[0]["k_photo"]
     size = None if factor == downscale else _io.target_size(k0.height, k0.width, downscale)
     rgb, alpha, intr = _io.load_photos(entries, photo_camera, size=size)
-    _, ray_deg, forward_facing = view_spread(c2w, intr)
-    if kind is None:
-        kind = "forward_facing" if forward_facing else "object"
-    elif kind == "forward_facing" and ray_deg >= 90.0:
-        raise InputError(f"some rays look {ray_deg:.0f} degrees away from the cameras' mean direction; a "
-                         "forward-facing (NDC) fit needs every ray within 90", field="kind")
+    axis_deg, ray_deg, forward_facing = view_spread(c2w, intr)
+    if kind is None and forward_facing:
+        kind, why = "forward_facing", (f"the cameras all look one way (axes within {axis_deg:.0f} degrees, rays "
+                                       f"within {ray_deg:.0f} of their mean direction): forward-facing, fitted in NDC")
+    elif kind is None:
+        kind, why = ("object", "photos with alpha: an object on a transparent background") if alpha is not None \
+            else ("unbounded", f"RGB photos without alpha, cameras looking up to {axis_deg:.0f} degrees away from "
+                               "their mean direction: background in every pixel, fitted as an unbounded scene")
+    elif kind == "forward_facing" and (ray_deg >= 90.0 or axis_deg > 2 * FORWARD_FACING_DEG):
+        raise InputError(f"the cameras look up to {axis_deg:.0f} degrees and their rays up to {ray_deg:.0f} degrees "
+                         "away from their mean direction (cameras around the scene); a forward-facing (NDC) fit "
+                         f"needs the cameras within {2 * FORWARD_FACING_DEG:.0f} and every ray within 90",
+                         field="kind")
+    else:
+        why = "chosen with --scene-kind"
     common = dict(name=root.resolve().name, root=root, rgb=rgb, alpha=alpha, intrinsics=intr[0],
-                  intrinsics_all=intr, splits=llff_splits(len(images)), image_paths=tuple(e["path"] for e in entries))
-    if kind == "object":
-        return Scene(c2w=c2w, kind="object", source_files=(cam_file, img_file), **common)
+                  intrinsics_all=intr, splits=llff_splits(len(images)), image_paths=tuple(e["path"] for e in entries),
+                  kind_reason=why)
+    if kind != "forward_facing":
+        return Scene(c2w=c2w, kind=kind, source_files=(cam_file, img_file), **common)
     if len(set(intr)) > 1:
         raise InputError("a forward-facing capture is fitted in one NDC frustum, built from one camera; these "
                          f"images use {len(set(intr))} different cameras", file=cam_file)

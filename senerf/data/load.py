@@ -8,6 +8,13 @@ Downscaling: ``downscale`` divides both image sides (``>= 1``, not necessarily a
 an ``images_N/`` folder when one fits, see :mod:`senerf.data.llff`).  Sides are rounded half up
 (``floor(side / downscale + 0.5)``), images area-interpolated (``cv2.INTER_AREA``) on premultiplied colour, and
 intrinsics scaled per axis by the actual ratio (``Intrinsics.resized``), exact with pixel centres at ``i + 0.5``.
+
+Scene kind (:data:`~senerf.data.SCENE_KINDS`, what the fit models): LLFF is ``forward_facing``; Blender and
+instant-ngp / nerfstudio scenes are ``object`` when their photos have alpha (an object on a transparent
+background, fitted in a box) and ``unbounded`` otherwise (background in every pixel: all of space is fitted);
+COLMAP decides from its cameras (:mod:`senerf.data.colmap`).  ``kind`` overrides the choice, except that
+``forward_facing`` needs the depth bounds only LLFF and COLMAP captures give, and rays within 90 degrees of the
+cameras' mean direction.
 """
 
 from __future__ import annotations
@@ -21,7 +28,7 @@ from ..errors import InputError, is_number
 from .blender import load_blender, load_ngp
 from .colmap import colmap_model_folder, load_colmap
 from .llff import load_llff
-from .scene import Scene, as_background
+from .scene import SCENE_KINDS, Scene, as_background
 
 __all__ = ["load_scene", "detect_format", "scene_root", "FORMAT_FILES"]
 
@@ -62,8 +69,7 @@ def load_scene(path, downscale: float = 1, background=None, kind: str | None = N
             full resolution).
         background: ``None`` keeps straight colour; a grey value or ``(r, g, b)`` in ``[0, 1]`` returns
             ``rgb`` already composited onto it (``alpha`` is kept, ``Scene.background`` records the colour).
-        kind: COLMAP scenes only: ``'object'`` or ``'forward_facing'`` instead of the kind
-            :func:`senerf.data.colmap.view_spread` picks (the other formats have theirs).
+        kind: one of :data:`~senerf.data.SCENE_KINDS` instead of the kind the module docstring says.
 
     Returns:
         :class:`Scene` with OpenCV ``c2w`` (see :class:`Scene` for the fields).
@@ -81,15 +87,33 @@ def load_scene(path, downscale: float = 1, background=None, kind: str | None = N
     bg = None if background is None else as_background(background)
     root = scene_root(path)
     fmt = detect_format(root)
-    if kind is not None and fmt != "colmap":
-        raise InputError(f"only a COLMAP scene's kind can be chosen; this is a {fmt} scene, kind "
-                         f"{'forward_facing' if fmt == 'llff' else 'object'}", field="kind")
+    if kind is not None and kind not in SCENE_KINDS:
+        raise InputError(f"expected one of {', '.join(SCENE_KINDS)}, got {kind!r}", field="kind")
+    if kind == "forward_facing" and fmt in ("blender", "ngp"):
+        raise InputError(f"a forward-facing (NDC) fit needs the depth bounds only LLFF and COLMAP captures give; "
+                         f"this is a {fmt} scene: fit it as unbounded or object", file=root, field="kind")
     loaders = {"blender": load_blender, "ngp": load_ngp, "llff": load_llff, "colmap": load_colmap}
     scene = loaders[fmt](root, downscale=float(downscale), **({"kind": kind} if fmt == "colmap" else {}))
+    if fmt != "colmap":
+        scene = _with_kind(scene, fmt, kind)
     _warn_odd_views(scene)
     if bg is None:
         return scene
     return dataclasses.replace(scene, rgb=scene.composite(bg), background=tuple(float(c) for c in bg))
+
+
+def _with_kind(scene: Scene, fmt: str, kind: str | None) -> Scene:
+    """``scene`` with the kind the module docstring gives a ``fmt`` scene, or ``kind`` when given, and why."""
+    if kind is not None:
+        return dataclasses.replace(scene, kind=kind, kind_reason="chosen with --scene-kind")
+    if fmt == "llff":
+        return dataclasses.replace(scene, kind_reason="an LLFF capture (poses_bounds.npy): forward-facing, fitted "
+                                                      "in NDC")
+    if scene.alpha is not None:
+        return dataclasses.replace(scene, kind="object", kind_reason="photos with alpha: an object on a transparent "
+                                                                     "background, fitted in a box")
+    return dataclasses.replace(scene, kind="unbounded", kind_reason="RGB photos without alpha: background in every "
+                                                                    "pixel, fitted as an unbounded scene")
 
 
 def _warn_odd_views(scene: Scene) -> None:

@@ -18,10 +18,12 @@ import numpy as np
 from ..errors import InputError, is_number
 from ..geometry import Intrinsics
 
-__all__ = ["Scene", "SPLIT_NAMES", "as_background", "scene_file_digests", "changed_files", "view_names"]
+__all__ = ["Scene", "SPLIT_NAMES", "SCENE_KINDS", "as_background", "scene_file_digests", "changed_files", "view_names"]
 
 #: The split names every :class:`Scene` carries (possibly empty).
 SPLIT_NAMES = ("train", "val", "test")
+#: What a scene can be fitted as (:attr:`Scene.kind`).
+SCENE_KINDS = ("object", "forward_facing", "unbounded")
 
 
 def as_background(background, field: str = "background") -> np.ndarray:
@@ -50,8 +52,12 @@ class Scene:
         intrinsics_all: per-image intrinsics, length ``n`` (same width/height for all).
         c2w: ``(n, 4, 4)`` float64 camera-to-world, OpenCV convention.
         splits: ``'train'``, ``'val'``, ``'test'`` -> int64 index arrays into the arrays above (empty if not given).
-        kind: ``'object'`` (360 degree, e.g. Blender) or ``'forward_facing'`` (LLFF).
+        kind: one of :data:`SCENE_KINDS`: ``'object'`` (photos with alpha, e.g. Blender: an object in a box),
+            ``'forward_facing'`` (LLFF: NDC) or ``'unbounded'`` (RGB captures with background in every pixel).
+        kind_reason: why the loader chose ``kind`` (one line, printed and recorded by a fit).
         near, far: scene depth bounds in world units where the format gives them (LLFF), else ``None``.
+        bound: ``((xmin, ymin, zmin), (xmax, ymax, zmax))``, the world box the scene lies in where the format
+            says (instant-ngp's ``aabb_scale``), else ``None``.
         image_paths: the image file of each view, length ``n``.
         source_files: the pose, camera and split files read, each once (:func:`scene_file_digests` hashes them).
         background: ``(r, g, b)`` that ``rgb`` was composited onto at load time, or ``None`` (straight).
@@ -68,6 +74,8 @@ class Scene:
     kind: str = "object"
     near: float | None = None
     far: float | None = None
+    kind_reason: str = ""
+    bound: tuple | None = None
     image_paths: tuple = ()
     background: tuple | None = None
     source_files: tuple = ()

@@ -5,7 +5,7 @@ from __future__ import annotations
 import torch
 from torch import nn
 
-from .base import RadianceField, as_aabb, check_points, normalize_aabb, trunc_exp
+from .base import RadianceField, as_aabb, check_points, field_coords, trunc_exp
 from .ckernel import fused_plane_features, kernel_status
 from .encoding import sh_encoding
 from .interp import PAIRS, plane_interp, plane_interp_reference, plane_layout
@@ -23,6 +23,8 @@ class KPlanesField(RadianceField):
 
     Args:
         aabb: ``(2, 3)`` box ``[min, max]``; the planes cover it, points outside get density 0.
+        contract: the planes cover all of space instead: ``aabb`` fills their middle half and the rest of space is
+            contracted into the outer half (:func:`~senerf.fields.field_coords`; K-Planes' unbounded scenes).
         resolution: base plane resolution (texels per side).
         n_features: features per plane.
         multires: resolution multipliers, one scale each.
@@ -44,10 +46,12 @@ class KPlanesField(RadianceField):
 
     def __init__(self, aabb, resolution: int = 64, n_features: int = 16, multires=(1, 2, 4),
                  view_dependent: bool = True, hidden: int = 32, geo_features: int = 16, density_shift: float = 0.0,
-                 generator: torch.Generator | None = None, backend: str = "auto", chunk: int = 32768):
+                 generator: torch.Generator | None = None, backend: str = "auto", chunk: int = 32768,
+                 contract: bool = False):
         super().__init__()
         gen = make_generator(generator)
         self.register_buffer("aabb", as_aabb(aabb))
+        self.contract = bool(contract)
         self.resolutions = tuple(int(resolution * m) for m in multires)
         self.n_features = int(n_features)
         self.view_dependent = bool(view_dependent)
@@ -84,7 +88,7 @@ class KPlanesField(RadianceField):
             ``(feat (N, S * F), inside (N,) bool)``.
         """
         check_points(xyz)
-        u, inside = normalize_aabb(xyz.to(self.table.dtype), self.aabb)
+        u, inside = field_coords(xyz.to(self.table.dtype), self.aabb, self.contract)
         u = torch.nan_to_num(u, nan=0.0).clamp(-1.0, 1.0)   # NaN points: outside (density 0), safe lookups
         if self.backend in ("auto", "fused"):
             f = fused_plane_features(self.table, u, self.resolutions, self.offsets)
@@ -125,7 +129,7 @@ class KPlanesField(RadianceField):
         return sigma, (rgb[0] if len(rgb) == 1 else torch.cat(rgb))
 
     def density(self, xyz: torch.Tensor) -> torch.Tensor:
-        """Density ``(N,)`` at ``xyz (N, 3)``; 0 outside the AABB."""
+        """Density ``(N,)`` at ``xyz (N, 3)``; 0 outside the AABB (unless :attr:`contract`)."""
         return self._decode(xyz, None, with_rgb=False)[0]
 
     def forward(self, xyz: torch.Tensor, dirs: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:

@@ -5,7 +5,7 @@ from __future__ import annotations
 import torch
 from torch import nn
 
-from .base import RadianceField, as_aabb, check_points, normalize_aabb
+from .base import RadianceField, as_aabb, check_points, field_coords
 from .encoding import anneal_weights, positional_encoding, sh_encoding
 from .mlp import make_generator, seeded_linear
 
@@ -21,6 +21,7 @@ class NeRFField(RadianceField):
     Args:
         aabb: ``(2, 3)`` box or ``None``; with a box, points are mapped to ``[-1, 1]^3`` and points outside
             have density 0; without, points are used as given.
+        contract: all of space is the field's, contracted beyond ``aabb`` (:func:`~senerf.fields.field_coords`).
         n_freqs: positional-encoding octaves for points.
         hidden, n_layers: trunk width and depth (a skip connection re-injects the encoding at the middle).
         view_dependent: colour head sees the SH (degree 4) encoding of the direction.
@@ -30,10 +31,13 @@ class NeRFField(RadianceField):
 
     def __init__(self, aabb=None, n_freqs: int = 10, hidden: int = 128, n_layers: int = 4,
                  view_dependent: bool = True, anneal_steps: int | None = None,
-                 generator: torch.Generator | None = None):
+                 generator: torch.Generator | None = None, contract: bool = False):
         super().__init__()
         gen = make_generator(generator)
+        if contract and aabb is None:
+            raise ValueError("contract: needs the aabb of the inner region")
         self.register_buffer("aabb", None if aabb is None else as_aabb(aabb))
+        self.contract = bool(contract)
         self.n_freqs = int(n_freqs)
         self.anneal_steps = anneal_steps
         self.view_dependent = bool(view_dependent)
@@ -60,7 +64,7 @@ class NeRFField(RadianceField):
     def _trunk(self, xyz):
         check_points(xyz)
         if self.aabb is not None:
-            u, inside = normalize_aabb(xyz, self.aabb)
+            u, inside = field_coords(xyz, self.aabb, self.contract)
         else:
             u, inside = xyz, torch.ones(xyz.shape[0], dtype=torch.bool, device=xyz.device)
         enc = positional_encoding(u, self.n_freqs, self.band_weights)

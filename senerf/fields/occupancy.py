@@ -5,7 +5,7 @@ from __future__ import annotations
 import torch
 from torch import nn
 
-from .base import as_aabb, check_points, normalize_aabb
+from .base import as_aabb, check_points, field_coords, uncontract_unit
 
 __all__ = ["OccupancyGrid"]
 
@@ -19,16 +19,22 @@ class OccupancyGrid(nn.Module):
     it.  A fresh grid is fully occupied, so rendering with it equals rendering without it until the first
     update.  Points outside the AABB are never occupied.
 
+    With ``contract`` the grid covers all of space in the field's contracted coordinates
+    (:func:`~senerf.fields.field_coords`: the AABB is the middle half of every axis); a cell's estimate is then
+    its density times its stretch, the world size of the cell over that of a cell inside the AABB, so that the
+    threshold means the same optical thickness per cell near and far.
+
     Args:
         aabb: ``(2, 3)`` box.
         resolution: cells per side.
         threshold: density above which a cell is occupied.
         decay: multiplier of the old estimate at each update (0 = forget, use only the newest density).
         dilate: cells of dilation of the binary mask (0 = none).
+        contract: cover all of space, contracted beyond ``aabb``.
     """
 
     def __init__(self, aabb, resolution: int = 64, threshold: float = 0.01, decay: float = 0.95,
-                 dilate: int = 1):
+                 dilate: int = 1, contract: bool = False):
         super().__init__()
         if resolution < 1:
             raise ValueError(f"resolution: expected >= 1, got {resolution}")
@@ -36,6 +42,7 @@ class OccupancyGrid(nn.Module):
         self.threshold = float(threshold)
         self.decay = float(decay)
         self.dilate = int(dilate)
+        self.contract = bool(contract)
         self.register_buffer("aabb", as_aabb(aabb))
         n = self.resolution ** 3
         self.register_buffer("density_grid", torch.full((n,), float("inf")))
@@ -43,10 +50,21 @@ class OccupancyGrid(nn.Module):
 
     def cell_centers(self) -> torch.Tensor:
         """``(res^3, 3)`` world centres of the cells, flat index ``(i * res + j) * res + k`` for x, y, z."""
+        return self._centres_and_stretch()[0]
+
+    def _centres_and_stretch(self) -> tuple[torch.Tensor, torch.Tensor]:
+        """``(centres (res^3, 3), stretch (res^3,))``: the cells' world centres and the factor their density is
+        scaled by (1 without ``contract``; ``1 / (2 - m)^2`` for a cell at contracted L-infinity radius ``m``
+        of ``[0, 2)``, the derivative of the inverse contraction)."""
         r = self.resolution
         c = (torch.arange(r, dtype=torch.float32, device=self.aabb.device) + 0.5) / r
         g = torch.stack(torch.meshgrid(c, c, c, indexing="ij"), dim=-1).reshape(-1, 3)
-        return self.aabb[0] + g * (self.aabb[1] - self.aabb[0])
+        if not self.contract:
+            return self.aabb[0] + g * (self.aabb[1] - self.aabb[0]), torch.ones_like(g[:, 0])
+        unit = 2.0 * g - 1.0                                         # contracted coordinates in (-1, 1)
+        m = (2.0 * unit).abs().amax(dim=-1).clamp(min=1.0)
+        centre, half = (self.aabb[0] + self.aabb[1]) / 2, (self.aabb[1] - self.aabb[0]) / 2
+        return centre + half * uncontract_unit(unit), 1.0 / (2.0 - m).square()
 
     @torch.no_grad()
     def update(self, field, chunk: int = 65536) -> float:
@@ -57,8 +75,8 @@ class OccupancyGrid(nn.Module):
             field: anything with ``density(xyz (N, 3)) -> (N,)``.
             chunk: points per ``density`` call.
         """
-        pts = self.cell_centers()
-        new = torch.cat([field.density(pts[s:s + chunk]).float() for s in range(0, pts.shape[0], chunk)])
+        pts, stretch = self._centres_and_stretch()
+        new = torch.cat([field.density(pts[s:s + chunk]).float() for s in range(0, pts.shape[0], chunk)]) * stretch
         old = torch.where(torch.isinf(self.density_grid), torch.zeros_like(new), self.density_grid * self.decay)
         self.density_grid.copy_(torch.maximum(old, new))
         occ = (self.density_grid > self.threshold).float().view(1, 1, *(self.resolution,) * 3)
@@ -75,7 +93,7 @@ class OccupancyGrid(nn.Module):
     def is_occupied(self, xyz: torch.Tensor) -> torch.Tensor:
         """``(N,)`` bool: the cell containing each point of ``xyz (N, 3)`` is occupied (False outside)."""
         check_points(xyz)
-        u, inside = normalize_aabb(xyz, self.aabb)
+        u, inside = field_coords(xyz, self.aabb, self.contract)
         r = self.resolution
         ijk = ((u + 1.0) * (0.5 * r)).floor().long().clamp(0, r - 1)
         flat = (ijk[:, 0] * r + ijk[:, 1]) * r + ijk[:, 2]

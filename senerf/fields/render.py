@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from .sampling import check_rays, stratified_bins
+from .sampling import bin_fractions, check_rays, ray_bins
 
-__all__ = ["volume_render", "render_rays", "render_image", "EMPTY_ACC"]
+__all__ = ["volume_render", "render_rays", "render_image", "contraction_box", "bin_distortion", "EMPTY_ACC"]
 
 #: rays whose accumulated opacity is below this are "empty": their ray_dist is t_far
 EMPTY_ACC = 1e-6
@@ -54,12 +54,42 @@ def volume_render(sigma: torch.Tensor, rgb: torch.Tensor, t: torch.Tensor, t_far
     return {"rgb": color, "acc": acc, "ray_dist": dist, "weights": weights, "t": t}
 
 
+def bin_distortion(weights: torch.Tensor) -> torch.Tensor:
+    """mip-NeRF 360's distortion loss for ``S`` bins of equal length ``1/S`` (the contracted bins of
+    :func:`~senerf.fields.contracted_bins` in their own coordinate), averaged over rays:
+    ``(sum_ij w_i w_j |i - j| + sum_i w_i^2 / 3) / S``.  It is small when each ray's weight gathers in few
+    neighbouring bins, so it removes the thin haze ("floaters") a field can put anywhere along a ray.
+
+    Args:
+        weights: ``(R, S)`` volume-rendering weights.
+    Returns:
+        a scalar.
+
+    Example:
+        >>> float(bin_distortion(torch.tensor([[0.5, 0.0, 0.5]])))   # (2 * 0.25 * 2 + 0.5 / 3) / 3
+        0.388888...
+    """
+    s = weights.shape[-1]
+    k = torch.arange(s, dtype=weights.dtype, device=weights.device)
+    before = torch.cumsum(weights, dim=-1) - weights                  # sum_{j<i} w_j
+    before_k = torch.cumsum(weights * k, dim=-1) - weights * k        # sum_{j<i} j w_j
+    pairs = 2.0 * (weights * (k * before - before_k)).sum(dim=-1)    # sum_{i != j} w_i w_j |i - j|
+    return ((pairs + weights.square().sum(dim=-1) / 3.0) / s).mean()
+
+
+def contraction_box(field) -> torch.Tensor | None:
+    """``field.aabb`` when ``field`` contracts space (the inner box of its samples' spacing), else None."""
+    return field.aabb if getattr(field, "contract", False) else None
+
+
 def render_rays(field, rays_o: torch.Tensor, rays_d: torch.Tensor, near: torch.Tensor, far: torch.Tensor,
                 n_samples: int, generator: torch.Generator | None = None, background=None,
                 occupancy=None, randomized: bool = True) -> dict:
     """Stratified ray marching through ``field`` and :func:`volume_render`.
 
-    With ``occupancy`` (an :class:`~senerf.fields.OccupancyGrid`), samples in empty cells are dropped
+    The bins are even in distance, or, for a field that contracts space (``field.contract``), even along the
+    ray's path in contracted space (:func:`~senerf.fields.contracted_bins` around ``field.aabb``).  With
+    ``occupancy`` (an :class:`~senerf.fields.OccupancyGrid`), samples in empty cells are dropped
     before the field is evaluated (their density and colour are 0).
 
     Args:
@@ -75,7 +105,8 @@ def render_rays(field, rays_o: torch.Tensor, rays_d: torch.Tensor, near: torch.T
     r = rays_o.shape[0]
     if near.shape != (r,) or far.shape != (r,):
         raise ValueError(f"near/far: expected shape ({r},), got {tuple(near.shape)}, {tuple(far.shape)}")
-    t = stratified_bins(near, far, n_samples, generator, randomized)
+    t = ray_bins(rays_o, rays_d, near, far, bin_fractions(near, n_samples, generator, randomized),
+                 contraction_box(field))
     pts = (rays_o[:, None, :] + t[..., None] * rays_d[:, None, :]).reshape(-1, 3)
     dirs = rays_d[:, None, :].expand(r, n_samples, 3).reshape(-1, 3)
     if occupancy is None:

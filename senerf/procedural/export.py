@@ -79,13 +79,32 @@ def one_side_poses(n: int, rng: np.random.Generator, radius: float = 4.0) -> np.
     return pose_from_spherical(az, el, float(radius)).reshape(n, 4, 4)
 
 
-def _remove_stale_views(folder: Path, n: int) -> None:
-    """Delete ``r_K.png`` / ``r_K_depth.npy`` with ``K >= n`` from ``folder``: views an earlier, larger export
-    wrote there (an overwrite must not leave images no transforms file lists); nothing else is touched."""
+def _remove_stale_views(folder: Path, n: int, pattern: str = r"r_(0|[1-9][0-9]*)(\.png|_depth\.npy)") -> None:
+    """Delete the files of ``folder`` named ``pattern`` (group 1: the view index ``K``; default ``r_K.png`` /
+    ``r_K_depth.npy``) with ``K >= n``: views an earlier, larger export wrote there (an overwrite must not leave
+    images no transforms file lists); nothing else is touched."""
     for path in folder.iterdir():
-        m = re.fullmatch(r"r_(0|[1-9][0-9]*)(\.png|_depth\.npy)", path.name)
+        m = re.fullmatch(pattern, path.name)
         if m and int(m.group(1)) >= n and path.is_file():
             path.unlink()
+
+
+def _scene_folder(out_dir, markers: tuple, overwrite: bool) -> Path:
+    """``out_dir`` as a Path, refused (InputError) when it is a file, or holds one of the ``markers`` (file names)
+    of a scene and ``overwrite`` is false; nothing is written."""
+    out = Path(out_dir)
+    if out.exists() and not out.is_dir():
+        raise InputError("exists and is not a folder", file=out)
+    existing = [p for p in (out / m for m in markers) if p.exists()]
+    if existing and not overwrite:
+        raise InputError("already holds a scene (pass overwrite=True to replace it)", file=existing[0])
+    return out
+
+
+def _write_view(image: np.ndarray, z_depth: np.ndarray, png: Path, depth: Path) -> None:
+    """Write ``image`` (H, W, C) in [0, 1] as an 8-bit PNG and ``z_depth`` (H, W) as a float32 .npy file."""
+    iio.imwrite(png, np.round(np.clip(image, 0, 1) * 255).astype(np.uint8))
+    np.save(depth, z_depth)
 
 
 def export_blender_scene(out_dir, config: SceneConfig | None = None, n_train: int = 20, n_val: int = 8,
@@ -118,12 +137,7 @@ def export_blender_scene(out_dir, config: SceneConfig | None = None, n_train: in
         raise ValueError(f"camera_angle_x must be in (0, pi) radians, got {camera_angle_x}")
     if not (float(radius) > 2.7):
         raise ValueError(f"radius must exceed 2.7 (cameras outside the scene's bounds), got {radius}")
-    out = Path(out_dir)
-    if out.exists() and not out.is_dir():
-        raise InputError("exists and is not a folder", file=out)
-    existing = [p for p in (out / f"transforms_{s}.json" for s in ("train", "val", "test")) if p.exists()]
-    if existing and not overwrite:
-        raise InputError("already holds a scene (pass overwrite=True to replace it)", file=existing[0])
+    out = _scene_folder(out_dir, tuple(f"transforms_{s}.json" for s in ("train", "val", "test")), overwrite)
 
     rng = np.random.default_rng(seed)
     train = np.concatenate([one_side_poses(n_one_side, rng, radius),
@@ -138,8 +152,7 @@ def export_blender_scene(out_dir, config: SceneConfig | None = None, n_train: in
         for k, c2w in enumerate(poses):
             view = render(scene, intr, c2w)
             rgba = np.concatenate([view.rgb, view.alpha[..., None]], axis=-1)
-            iio.imwrite(out / split / f"r_{k}.png", np.round(np.clip(rgba, 0, 1) * 255).astype(np.uint8))
-            np.save(out / split / f"r_{k}_depth.npy", view.depth_or_zero())
+            _write_view(rgba, view.depth_or_zero(), out / split / f"r_{k}.png", out / split / f"r_{k}_depth.npy")
             frames.append({"file_path": f"./{split}/r_{k}", "rotation": 0.0,
                            "transform_matrix": opencv_to_opengl(c2w).tolist()})
         doc = {"camera_angle_x": float(camera_angle_x), "frames": frames}

@@ -54,7 +54,7 @@ class Render:
         z_depth: (H, W) float64 camera-frame z of the hit; inf for misses.
         ray_dist: (H, W) float64 distance along the unit pixel ray; inf for misses.
         normals: (H, W, 3) float32 world-frame outward face normals; 0 for misses.
-        object_id: (H, W) int32 (see ``scene.OBJECT_NAMES``); -1 for misses.
+        object_id: (H, W) int32 (see ``scene.object_names``); -1 for misses.
         points: (H, W, 3) float64 world hit points; nan for misses.
     """
 

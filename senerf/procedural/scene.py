@@ -7,8 +7,9 @@ analytically at the exact 3D hit point, so a pixel's colour is the exact colour 
 ray hits: no texture maps, no filtering, no anti-aliasing.
 
 Convention: world frame is z-up, units are the scene's (the ground's top face is at ``z = GROUND_TOP``);
-object ids index ``OBJECT_NAMES`` (``-1`` = no hit).  Shading (:func:`~senerf.procedural.render.shade`) never
-depends on the viewing direction, so colours are multi-view consistent.
+object ids index the scene's ``object_names`` (here ``OBJECT_NAMES``; ``-1`` = no hit).  Shading
+(:func:`~senerf.procedural.render.shade`) never depends on the viewing direction, so colours are multi-view
+consistent.
 """
 
 from __future__ import annotations
@@ -65,15 +66,20 @@ class SceneConfig:
             raise ValueError(f"ground_radius must be in [0.3, 1.5] (bounded scene), got {self.ground_radius}")
         if not (0 <= int(self.sphere_subdivisions) <= 6):
             raise ValueError(f"sphere_subdivisions must be in [0, 6], got {self.sphere_subdivisions}")
-        if not (float(self.texture_scale) > 0):
-            raise ValueError(f"texture_scale must be positive, got {self.texture_scale}")
-        if not (0.0 <= float(self.ambient) <= 1.0):
-            raise ValueError(f"ambient must be in [0, 1], got {self.ambient}")
         if not (0.0 <= float(self.jitter) <= 0.1):
             raise ValueError(f"jitter must be in [0, 0.1], got {self.jitter}")
-        light = np.asarray(self.light_dir, dtype=np.float64)
-        if light.shape != (3,) or not np.all(np.isfinite(light)) or np.linalg.norm(light) == 0:
-            raise ValueError(f"light_dir must be a finite non-zero 3-vector, got {self.light_dir}")
+        _check_look(self)
+
+
+def _check_look(cfg) -> None:
+    """The checks of ``texture_scale``, ``ambient`` and ``light_dir`` that every scene configuration shares."""
+    if not (float(cfg.texture_scale) > 0):
+        raise ValueError(f"texture_scale must be positive, got {cfg.texture_scale}")
+    if not (0.0 <= float(cfg.ambient) <= 1.0):
+        raise ValueError(f"ambient must be in [0, 1], got {cfg.ambient}")
+    light = np.asarray(cfg.light_dir, dtype=np.float64)
+    if light.shape != (3,) or not np.all(np.isfinite(light)) or np.linalg.norm(light) == 0:
+        raise ValueError(f"light_dir must be a finite non-zero 3-vector, got {cfg.light_dir}")
 
 
 @dataclass(frozen=True, eq=False)
@@ -81,10 +87,10 @@ class ObjectTexture:
     """Procedural texture of one object, evaluated in the object's local frame.
 
     Attributes:
-        kind: 'checker2d' (xy plane), 'checker3d', 'torus_checker', 'helix', 'noise'.
+        kind: 'checker2d' (xy plane), 'checker3d', 'torus_checker', 'helix', 'noise', 'cells' (xy plane).
         freq: cells (or stripes, or lattice cells) per scene unit / per turn, see :func:`texture_color`.
         colors: (2, 3) float64 palette.
-        params: extra scalars (torus major radius, noise lattice values (16**3,)).
+        params: extra scalars (torus major radius, noise lattice values (16**3,), cell values (16**2,)).
     """
 
     kind: str
@@ -98,13 +104,15 @@ class ProceduralScene:
     """A built scene: one merged mesh, per-face object ids, per-object frames and textures.
 
     Attributes:
-        config: the :class:`SceneConfig` it was built from.
+        config: the :class:`SceneConfig` (or :class:`~senerf.procedural.room.RoomConfig`) it was built from;
+            shading reads its ``ambient``.
         mesh: merged ``trimesh.Trimesh`` (world frame).
         face_object: (F,) int32 object id of every face of ``mesh``.
         world_to_local: (n_objects, 4, 4) float64 world -> object frame (texture frame).
         textures: one :class:`ObjectTexture` per object id.
         intersector: embreex ``RayMeshIntersector`` over ``mesh``.
         light: (3,) unit direction towards the light, world frame.
+        object_names: the name of every object id.
     """
 
     config: SceneConfig
@@ -114,6 +122,7 @@ class ProceduralScene:
     textures: tuple
     intersector: RayMeshIntersector
     light: np.ndarray
+    object_names: tuple = OBJECT_NAMES
 
 
 def _rotation(axis: str, deg: float) -> np.ndarray:
@@ -169,6 +178,12 @@ def build_scene(config: SceneConfig | None = None) -> ProceduralScene:
     meshes, transforms = _object_meshes(cfg, rng)
     textures = _textures(cfg, rng)
     keep = [i for i in range(len(meshes)) if cfg.with_ground or i != 0]
+    return _assemble(cfg, meshes, transforms, textures, keep, OBJECT_NAMES)
+
+
+def _assemble(cfg, meshes, transforms, textures, keep, names) -> ProceduralScene:
+    """The scene of the objects ``keep`` (ids) of ``meshes`` (local frames) placed by ``transforms`` (local ->
+    world (4, 4)); every object id keeps its frame and texture, kept or not."""
     world = [meshes[i].copy().apply_transform(transforms[i]) for i in keep]   # apply_transform returns the mesh
     face_object = [np.full(len(m.faces), i, dtype=np.int32) for i, m in zip(keep, world)]
     mesh = trimesh.util.concatenate(world)
@@ -182,6 +197,7 @@ def build_scene(config: SceneConfig | None = None) -> ProceduralScene:
         textures=textures,
         intersector=RayMeshIntersector(mesh),
         light=light / np.linalg.norm(light),
+        object_names=tuple(names),
     )
 
 
@@ -214,7 +230,10 @@ def texture_color(texture: ObjectTexture, local: np.ndarray) -> np.ndarray:
     Convention: 'checker2d' uses local x, y (cells of ``1/freq`` units); 'checker3d' the three local
     coordinates; 'torus_checker' ``freq`` cells per quarter turn around the torus axis (local z) and per half
     turn around the tube; 'helix' ``freq`` stripes per unit of height shifted by 4 stripes per turn (a helix);
-    'noise' value noise with lattice spacing ``1/freq`` mixed between the two palette colours with a sharp ramp.
+    'noise' value noise with lattice spacing ``1/freq`` mixed between the two palette colours with a sharp ramp;
+    'cells' square cells of ``1/freq`` units in local x, y, each mixing 0.6 of the checker parity with 0.4 of its
+    own value from the periodic 16 x 16 ``params['lattice']`` (index ``16 (i mod 16) + (j mod 16)``), so that
+    neighbouring cells always differ (by at least 0.2) and no two stretches of 16 cells look alike.
     """
     local = np.asarray(local, dtype=np.float64)
     if local.ndim != 2 or local.shape[1] != 3:
@@ -238,6 +257,10 @@ def texture_color(texture: ObjectTexture, local: np.ndarray) -> np.ndarray:
     elif texture.kind == "noise":
         n = _value_noise(local * f + 8.0, texture.params["lattice"])
         t = np.clip((n - 0.5) * 4.0 + 0.5, 0.0, 1.0)
+    elif texture.kind == "cells":
+        cell = np.floor(local[:, :2] * f).astype(np.int64)
+        value = texture.params["lattice"][(cell[:, 0] % 16) * 16 + cell[:, 1] % 16]
+        t = 0.6 * (cell.sum(axis=-1) % 2) + 0.4 * value
     else:
         raise ValueError(f"unknown texture kind {texture.kind!r}")
     return (1.0 - t)[:, None] * c0[None] + t[:, None] * c1[None]

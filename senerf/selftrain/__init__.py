@@ -2,7 +2,7 @@
 (:func:`run_selftraining`, settings in :class:`senerf.config.SelfTrainConfig`; one iteration in DESIGN.md).
 """
 
-from .distill import (DistillationLoss, PseudoRays, bins_with_fractions, gaussian_kernel, neighbour_offsets,
+from .distill import (DistillationLoss, PseudoRays, gaussian_kernel, neighbour_offsets,
                       prior_weights, unified_prior_weights)
 from .features import (LazyViewFeatures, VGG19Features, features_device, features_memory_problem, features_on_device,
                        known_view_features)
@@ -18,7 +18,7 @@ __all__ = [
     "NO_MATCH", "ViewSimilarity", "bilinear_sample", "cosine_similarity", "view_similarity",
     "adaptive_threshold", "resolve_threshold", "threshold_weights", "gt_reliable_mask", "mask_quality",
     "gaussian_kernel", "neighbour_offsets", "prior_weights", "unified_prior_weights",
-    "bins_with_fractions", "PseudoRays", "DistillationLoss",
+    "PseudoRays", "DistillationLoss",
     "PseudoLabels", "sample_pseudo_cameras", "estimate_reliability", "known_images", "dataset_pseudo_views",
     "reliability_mask_quality", "pseudo_view_centre_problem",
     "run_selftraining",

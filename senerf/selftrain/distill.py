@@ -2,7 +2,7 @@
 
 Per student step, :class:`DistillationLoss` draws a batch of pseudo-view rays, queries the teacher under
 ``torch.no_grad`` at its own stratified points and renders the student at *its own* random point of the *same*
-evenly spaced bins (``senerf.fields.stratified_bins``), so bin ``k`` pairs with bin ``k`` and the different
+bins (``senerf.fields.ray_bins``), so bin ``k`` pairs with bin ``k`` and the different
 positions inside a bin are the paper's student noise.  Nothing of size rays x samples is kept between steps.
 
 Losses (``lambda_c = 1``, ``lambda_g = 1``, ``lambda_p = 0.005`` by default), on the per-bin volume-rendering
@@ -28,12 +28,12 @@ import numpy as np
 import torch
 
 from ..config import BACKGROUNDS, SelfTrainConfig
-from ..fields import render_rays, volume_render
+from ..fields import contraction_box, ray_bins, render_rays, volume_render
 from ..train import background_color
 from .reliability import check_shape
 
 __all__ = ["gaussian_kernel", "neighbour_offsets", "prior_weights", "unified_prior_weights", "PseudoRays",
-           "DistillationLoss", "bins_with_fractions"]
+           "DistillationLoss"]
 
 
 def neighbour_offsets(q: int = 3) -> np.ndarray:
@@ -108,19 +108,6 @@ def unified_prior_weights(similarity: np.ndarray, foreground: np.ndarray, q: int
         return np.where(_shift(fg, dy, dx, False), np.maximum(_shift(s, dy, dx, -np.inf) - s, 0.0), 0.0)
 
     return _neighbour_weights(gain, q, std)
-
-
-def bins_with_fractions(near: torch.Tensor, far: torch.Tensor, u: torch.Tensor) -> torch.Tensor:
-    """Points ``near + (k + u_k) (far - near) / S`` of :func:`senerf.fields.stratified_bins`' bins.
-
-    Args:
-        near, far: (R,); u: (R, S) fractions in [0, 1).
-    Returns:
-        t (R, S).
-    """
-    s = u.shape[-1]
-    k = torch.arange(s, dtype=u.dtype, device=u.device)
-    return near[:, None] + (k + u) * ((far - near)[:, None] / s)
 
 
 @dataclass(eq=False)
@@ -226,7 +213,8 @@ class DistillationLoss:
         rows, cols = torch.nonzero(nb_w > 0, as_tuple=True)   # only reliable neighbours are queried
         flat = nb_idx[rows, cols]
         near, far = pr.near[flat], pr.far[flat]
-        t = bins_with_fractions(near, far, u[rows])           # the same fractions for the whole kernel
+        t = ray_bins(pr.origins[flat], pr.dirs[flat], near, far, u[rows],   # the same fractions for the kernel
+                     contraction_box(self.teacher))
         pts = pr.origins[flat][:, None, :] + t[..., None] * pr.dirs[flat][:, None, :]
         flat_pts = pts.reshape(-1, 3)
         if self.teacher_occupancy is None:

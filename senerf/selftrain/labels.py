@@ -108,7 +108,9 @@ def estimate_reliability(teacher, occupancy, model, scene, train_idx, pseudo_c2w
         raise ValueError("renders do not match the known / pseudo cameras")
     known = (renders[0] if renders is not None else
              render_views(teacher, model, known_intr, known_c2w, occupancy=occupancy, device=device))
-    known_z = np.where(known["acc"] >= cfg.opacity_threshold, known["z_depth"], np.inf)   # occlusion buffers
+    # an unbounded scene has content in every pixel: no background to leave out and no empty space to label
+    opacity, empty_opacity = (0.0, 0.0) if model.contract else (cfg.opacity_threshold, cfg.empty_opacity)
+    known_z = np.where(known["acc"] >= opacity, known["z_depth"], np.inf)   # occlusion buffers
     if known_features is None:
         known_features = known_view_features(extractor, known_images(scene, train_idx, model))
     extract = extractor.device_features if features_on_device(extractor) else extractor
@@ -130,23 +132,23 @@ def estimate_reliability(teacher, occupancy, model, scene, train_idx, pseudo_c2w
         feats = extract(np.clip(view["rgb"][None], 0.0, 1.0))[0]
         res = view_similarity(feats, view["z_depth"], view["acc"], pseudo_k[i], pseudo_c2w[i],
                               known_features, known_z, known_intr, known_c2w,
-                              opacity_threshold=cfg.opacity_threshold, rel_tol=cfg.occlusion_rel_tol,
+                              opacity_threshold=opacity, rel_tol=cfg.occlusion_rel_tol,
                               foreground_only=True)
         view.update(similarity=res.similarity, foreground=res.foreground)
         for name, array in views.items():
             array[i] = view[name]
-    return _labels_from_views(views, pseudo_c2w, intr, cfg, alpha)
+    return _labels_from_views(views, pseudo_c2w, intr, cfg, alpha, empty_opacity)
 
 
 def _labels_from_views(views: dict, pseudo_c2w: np.ndarray, intr, cfg: SelfTrainConfig,
-                       alpha: float) -> PseudoLabels:
+                       alpha: float, empty_opacity: float) -> PseudoLabels:
     """:class:`PseudoLabels` from every pseudo view's render, similarity and foreground (``views``: the
     ``rgb, z_depth, acc, similarity, foreground``, each ``(P, H, W, ...)``): the threshold over all of them, the
     weights and the prior."""
     sims, fg, acc = views["similarity"], views["foreground"], views["acc"]
     tau = resolve_threshold(cfg.threshold, sims[fg], alpha=alpha, tau=cfg.fixed_tau)
     weights = threshold_weights(sims, fg, cfg.threshold, tau=tau, beta=cfg.beta)
-    empty = _empty_pixels(acc, cfg.empty_opacity)
+    empty = _empty_pixels(acc, empty_opacity)
     weights = np.where(empty, np.float32(1.0), weights).astype(np.float32)
     if cfg.threshold == "unified":
         neighbour, has = unified_prior_weights(sims, fg, cfg.kernel_size, cfg.kernel_std)

@@ -74,7 +74,7 @@ def make_occupancy(model, device):
     from senerf.fields import OccupancyGrid
 
     grid = OccupancyGrid(model.field_aabb, model.occupancy_resolution, threshold=model.occupancy_threshold,
-                         decay=model.occupancy_decay)
+                         decay=model.occupancy_decay, contract=model.contract)
     return grid.to(device)
 
 
@@ -141,7 +141,7 @@ def train_field(field: torch.nn.Module, rays: RayBatchSource, cfg: TrainConfig,
     Returns:
         :class:`TrainResult`.
     """
-    from senerf.fields import render_rays
+    from senerf.fields import bin_distortion, render_rays
 
     if not isinstance(rays, RayBatchSource):
         raise ValueError(f"rays must be a RayBatchSource, got {type(rays).__name__}")
@@ -191,6 +191,8 @@ def train_field(field: torch.nn.Module, rays: RayBatchSource, cfg: TrainConfig,
         loss = photo
         if cfg.tv_weight > 0:
             loss = loss + cfg.tv_weight * field.regularizer()
+        if model.contract and cfg.distortion_weight > 0:
+            loss = loss + cfg.distortion_weight * bin_distortion(out["weights"])
         logs: dict = {}
         if extra_loss is not None:
             extra, logs = extra_loss(field, step, generator, use_grid)

@@ -29,7 +29,7 @@ NDC_AABB = ((-1.5, -1.5, -1.0), (1.5, 1.5, 1.0))
 #: Boxes wider than this (world units) get their densities and occupancy threshold scaled to it (``choose_model``).
 DENSITY_PLATEAU_WIDTH = 4.0
 #: The settings :func:`choose_model` reports, in this order (then any other override).
-_REPORTED = ("field", "ndc", "aabb", "near", "resolution", "n_samples", "occupancy_resolution", "train_background",
+_REPORTED = ("field", "ndc", "contract", "aabb", "near", "bound", "resolution", "n_samples", "occupancy_resolution", "train_background",
              "view_dependent")
 
 
@@ -119,6 +119,7 @@ def choose_model(scene, train_idx, overrides: Mapping[str, Any] | None = None,
         extent_px = max(H, W)
         chosen["multires"] = (1, 2, 4)
     else:
+        unbounded = scene.kind == "unbounded"
         cams = np.asarray(scene.c2w)[train_idx] if train_idx.size >= 2 else np.asarray(scene.c2w)
         _check_parallax(cams, scene, train_idx)
         with np.errstate(over="ignore", invalid="ignore"):  # huge coordinates are refused just below
@@ -143,10 +144,16 @@ def choose_model(scene, train_idx, overrides: Mapping[str, Any] | None = None,
         why["occupancy_resolution"] = "64^3 occupancy grid skips empty space"
         extent_px = 2 * half / dist * intr.fx  # the box's width in pixels at the centre's distance
         chosen["multires"] = (1, 2)
+        if unbounded:
+            _unbounded(chosen, why, scene, dist)
     # base plane resolution: about the pixels the box covers in one image, /2, a multiple of 8 in [32, 128]
-    res = int(min(128, max(32, int(round(extent_px / 2 / 8)) * 8)))
+    # (contracted: the box fills the middle half of each plane, the outside the rest, so twice that)
+    texels = extent_px * (2 if chosen.get("contract") else 1)
+    res = int(min(128, max(32, int(round(texels / 2 / 8)) * 8)))
     chosen["resolution"] = res
-    why["resolution"] = f"base {res} (box ~{extent_px:.0f} px wide in {W}x{H} images), scales {chosen['multires']}"
+    why["resolution"] = (f"base {res} (box ~{extent_px:.0f} px wide in {W}x{H} images"
+                         f"{', the middle half of each plane' if chosen.get('contract') else ''}), "
+                         f"scales {chosen['multires']}")
     chosen["n_samples"] = 48 if not chosen["ndc"] else 64
     why["n_samples"] = f"{chosen['n_samples']} samples per ray"
     if scene.alpha is not None and getattr(scene, "background", None) is not None:
@@ -163,6 +170,8 @@ def choose_model(scene, train_idx, overrides: Mapping[str, Any] | None = None,
     else:
         chosen.update(train_background="black", eval_background="black")
         why["train_background"] = "RGB images: rendered over black"
+        if chosen.get("contract"):
+            why["train_background"] = "none: an unbounded scene's rays end in the scene"
     why["field"] = "K-Planes (the paper's main backbone)"   # (ModelConfig's defaults: K-Planes, view-dependent)
 
     if overrides.get("field") == "nerf":
@@ -181,7 +190,8 @@ def choose_model(scene, train_idx, overrides: Mapping[str, Any] | None = None,
     if cfg.field == "nerf":   # the plane resolution does not apply; say what the MLP is instead
         why["field"] = f"NeRF MLP, {nerf_description()}"
     for key in (*_REPORTED, *sorted(set(overrides) - set(_REPORTED))):
-        if key == "resolution" and cfg.field == "nerf":
+        if (key == "resolution" and cfg.field == "nerf") or (key in ("contract", "bound") and key not in overrides
+                                                               and getattr(cfg, key) in (False, None)):
             continue
         if key == "field" and key in overrides and cfg.field == "nerf":
             echo(f"model: field = 'nerf' (override): {why['field']}")
@@ -194,6 +204,27 @@ def choose_model(scene, train_idx, overrides: Mapping[str, Any] | None = None,
     if "density_scale" in why:
         echo(f"model: {why['density_scale']}")
     return cfg
+
+
+#: An unbounded scene's rays run from this many camera distances (to what the cameras look at) to ...
+UNBOUNDED_NEAR = 0.05
+#: ... this many (contracted to within 0.1 % of the edge of the field's space)
+UNBOUNDED_FAR = 1000.0
+
+
+def _unbounded(chosen: dict, why: dict, scene, dist: float) -> None:
+    """The settings of an unbounded scene: the box the cameras look at is the inner region of a contracted field,
+    rays run from ``UNBOUNDED_NEAR`` to ``UNBOUNDED_FAR`` camera distances, clipped to the scene's ``bound``."""
+    near, far = float(f"{UNBOUNDED_NEAR * dist:.4g}"), float(f"{UNBOUNDED_FAR * dist:.4g}")
+    chosen.update(contract=True, near=near, far=far)
+    why["contract"] = "unbounded scene: the box is kept as it is, all of space beyond it is contracted into the field"
+    why["near"] = f"rays from {near:.4g} to {far:.4g} ({UNBOUNDED_NEAR:g} and {UNBOUNDED_FAR:g} camera distances)"
+    why["occupancy_resolution"] = "64^3 occupancy grid over the contracted space skips empty space"
+    if scene.bound is not None:
+        chosen["bound"] = tuple(tuple(float(v) for v in row) for row in scene.bound)
+        lo, hi = chosen["bound"]
+        why["bound"] = ("rays end where they leave the scene's box " +
+                        " x ".join(f"[{a:.4g}, {b:.4g}]" for a, b in zip(lo, hi)) + " (aabb_scale)")
 
 
 def _scale_densities(values: dict, overrides: dict, width: float, why: dict) -> None:
@@ -240,7 +271,9 @@ def build_field(model: ModelConfig, seed: int = 0, steps: int | None = None):
     if model.field == "kplanes":
         return KPlanesField(model.field_aabb, resolution=model.resolution, n_features=model.n_features,
                             multires=model.multires, view_dependent=model.view_dependent,
-                            hidden=model.hidden, density_shift=model.density_shift, generator=gen)
+                            hidden=model.hidden, density_shift=model.density_shift, generator=gen,
+                            contract=model.contract)
     anneal = None if steps is None else max(1, int(steps) // 4)
     return NeRFField(aabb=model.field_aabb, n_freqs=NERF_FREQS, hidden=NERF_HIDDEN, n_layers=NERF_LAYERS,
-                     view_dependent=model.view_dependent, anneal_steps=anneal, generator=gen)
+                     view_dependent=model.view_dependent, anneal_steps=anneal, generator=gen,
+                     contract=model.contract)

@@ -72,7 +72,7 @@ def camera_rays(intrinsics, c2w: np.ndarray, model: ModelConfig, device: str | t
             (one per camera, all of one image size).  NDC needs them all equal (the NDC warp is built from
             one focal length; :func:`senerf.data.load_llff` refuses scenes whose focals differ).
         c2w: (n, 4, 4) camera-to-world poses (OpenCV).
-        model: gives ``ndc``/``ndc_near``, ``aabb`` and constant ``near``/``far``.
+        model: gives ``ndc``/``ndc_near``, ``aabb``, constant ``near``/``far`` and ``bound``.
 
     Returns:
         dict of float32 tensors flattened over ``(n, H, W)``: ``origins (R, 3)``, ``dirs (R, 3)`` unit,
@@ -116,6 +116,9 @@ def camera_rays(intrinsics, c2w: np.ndarray, model: ModelConfig, device: str | t
     elif model.near is not None:
         near = torch.full_like(o[:, 0], model.near)
         far = torch.full_like(o[:, 0], model.far)
+        if model.bound is not None:   # rays end where they leave the scene's box (or, missing it, are empty)
+            enter, leave = ray_aabb_bounds(o, d, model.field_bound, min_near=model.near)
+            near, far = enter.clamp(max=model.far), leave.clamp(max=model.far)
     else:
         # min_near 1e-3, or 1e-3 box sizes for a box under 1 unit (an absolute 1e-3 empties a tiny scene's rays)
         size = min(hi - lo for lo, hi in zip(*model.aabb))

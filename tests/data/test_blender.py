@@ -148,6 +148,35 @@ def test_ngp_split_lists_that_select_no_frame_or_are_not_lists_of_names_are_refu
     assert load_scene(ok).splits["val"].size == 0   # an empty val list is no val split
 
 
+def test_ngp_aabb_scale_bounds_the_scene_in_world_units(tmp_path, writers):
+    # instant-ngp maps a world point x to x * scale + offset and keeps the cube [0.5 - a/2, 0.5 + a/2]^3 there
+    # (a = aabb_scale; scale 0.33 and offset 0.5 by default): the world box is (0.5 -+ a/2 - offset) / scale.
+    assert load_scene(writers.ngp(tmp_path / "none")).bound is None
+    scene = load_scene(writers.ngp(tmp_path / "d", meta_extra={"aabb_scale": 4}))
+    assert np.allclose(scene.bound, [[-2 / 0.33] * 3, [2 / 0.33] * 3])   # (0.5 -+ 2 - 0.5) / 0.33
+    scene = load_scene(writers.ngp(tmp_path / "o", meta_extra={"aabb_scale": 2, "scale": 0.5,
+                                                                "offset": [0.5, 0.0, 1.0]}))
+    assert np.allclose(scene.bound, [[-2.0, -1.0, -3.0], [2.0, 3.0, 1.0]])
+    rgb = writers.ngp(tmp_path / "k", meta_extra={"aabb_scale": 4}, image=lambda seed: writers.rgba(seed)[..., :3])
+    assert load_scene(rgb).kind == "unbounded" and load_scene(tmp_path / "d").kind == "object"   # alpha: object
+
+
+@pytest.mark.parametrize("extra, field", [
+    ({"aabb_scale": 0}, "aabb_scale"), ({"aabb_scale": -4}, "aabb_scale"), ({"aabb_scale": "4x"}, "aabb_scale"),
+    ({"aabb_scale": True}, "aabb_scale"), ({"aabb_scale": float("nan")}, "aabb_scale"),
+    ({"aabb_scale": 4, "scale": 0}, "scale"), ({"aabb_scale": 4, "offset": [0.5, 0.5]}, "offset"),
+    ({"aabb_scale": 4, "offset": "middle"}, "offset"),
+])
+def test_a_bad_aabb_scale_is_one_line_naming_the_file_and_field(tmp_path, writers, extra, field):
+    from senerf.errors import InputError
+
+    root = writers.ngp(tmp_path / "n", meta_extra=extra)
+    with pytest.raises(InputError) as info:
+        load_scene(root)
+    assert info.value.field == field and info.value.file == str(root / "transforms.json")
+    assert "\n" not in str(info.value)
+
+
 # --- non-square images: each intrinsic from its own axis ---------------------------------------------------
 
 def _ngp_nonsquare(root, writers, **meta):

@@ -94,7 +94,7 @@ def test_object_capture_poses_and_cameras_read_back(tmp_path, binary):
     root, poses = ring_scene(tmp_path / "s", binary, np.arange(0, 360, 30))
     assert detect_format(root) == "colmap"
     scene = load_scene(root)
-    assert scene.kind == "object" and scene.near is None and scene.n_images == 12
+    assert scene.kind == "unbounded" and scene.near is None and scene.n_images == 12   # RGB photos
     np.testing.assert_allclose(scene.c2w, poses, atol=1e-12)  # sorted by name, COLMAP's world frame kept
     assert scene.intrinsics == Intrinsics(20.0, 21.0, 8.0, 6.0, 16, 12)
     assert [p.name for p in scene.image_paths] == [f"v_{k:02d}.png" for k in range(12)]
@@ -302,10 +302,10 @@ def test_depth_bounds_worked_out_by_hand(tmp_path):
 
 
 @pytest.mark.parametrize("azimuths, f, kind", [
-    (np.arange(0, 360, 30), 20.0, "object"),           # all around
+    (np.arange(0, 360, 30), 20.0, "unbounded"),           # all around
     (np.arange(0, 41, 10), 20.0, "forward_facing"),    # optical axes within 20 degrees of their mean
-    (np.arange(0, 91, 15), 20.0, "object"),            # within 45 degrees: an arc around an object
-    (np.arange(0, 21, 5), 3.0, "object"),              # a wide lens: corner rays 83 degrees off the mean
+    (np.arange(0, 91, 15), 20.0, "unbounded"),            # within 45 degrees: an arc around an object
+    (np.arange(0, 21, 5), 3.0, "unbounded"),              # a wide lens: corner rays 83 degrees off the mean
 ])
 def test_the_kind_follows_the_spread_of_cameras_and_rays(tmp_path, azimuths, f, kind):
     root, _ = ring_scene(tmp_path / "s", True, azimuths, model=("PINHOLE", (f, f, 8.0, 6.0)))
@@ -317,7 +317,10 @@ def test_the_kind_can_be_chosen(tmp_path, writers):
     assert load_scene(root, kind="object").kind == "object"
     root, _ = ring_scene(tmp_path / "o", True, np.arange(0, 360, 30), elevation=5.0)  # axes 85 degrees off down
     assert _error(root, kind="forward_facing").field == "kind"   # rays beyond 90 degrees: NDC cannot hold them
-    assert _error(writers.ngp(tmp_path / "n"), kind="object").field == "kind"   # only a COLMAP scene's is chosen
+    assert load_scene(root, kind="unbounded").kind == "unbounded"
+    ngp = writers.ngp(tmp_path / "n")
+    assert load_scene(ngp, kind="object").kind == "object"
+    assert _error(ngp, kind="forward_facing").field == "kind"   # no depth bounds for NDC in a transforms.json
 
 
 def test_images_txt_needs_its_points_lines_and_skips_blank_lines_as_colmap(tmp_path):
@@ -459,7 +462,7 @@ def test_a_point_on_the_cameras_plane_is_not_in_front_of_it(tmp_path):
 
 @pytest.mark.parametrize("azimuths, f, kind", [
     (np.arange(0, 61, 15), 20.0, "forward_facing"),   # axes 28.1 degrees from their mean
-    (np.arange(0, 71, 10), 20.0, "object"),           # 32.7
+    (np.arange(0, 71, 10), 20.0, "unbounded"),           # 32.7
     (np.arange(0, 21, 5), 3.5, "forward_facing"),     # axes 9.4, corner rays 78.5
 ])
 def test_the_kind_thresholds_are_30_and_80_degrees(tmp_path, azimuths, f, kind):
@@ -473,7 +476,7 @@ def test_the_kind_thresholds_are_30_and_80_degrees(tmp_path, azimuths, f, kind):
 
 def test_a_chosen_forward_facing_kind_takes_rays_up_to_90_degrees(tmp_path):
     root, _ = ring_scene(tmp_path / "a", True, np.arange(0, 41, 10), model=("PINHOLE", (3.0, 3.0, 8.0, 6.0)))
-    assert load_scene(root).kind == "object"  # corner rays 89.4 degrees off the mean
+    assert load_scene(root).kind == "unbounded"  # corner rays 89.4 degrees off the mean
     assert load_scene(root, kind="forward_facing").kind == "forward_facing"
     root, _ = ring_scene(tmp_path / "b", True, np.arange(0, 56, 5), model=("PINHOLE", (4.0, 4.0, 8.0, 6.0)))
     error = _error(root, kind="forward_facing")

@@ -1,11 +1,13 @@
-"""Tests of senerf/fields/base.py: the RadianceField contract (every field), AABB and point checks."""
+"""Tests of senerf/fields/base.py: the RadianceField contract (every field), AABB and point checks, the scene
+contraction against mip-NeRF 360's formula written point by point."""
 
 from __future__ import annotations
 
+import numpy as np
 import pytest
 import torch
 
-from senerf.fields import KPlanesField, NeRFField, RadianceField
+from senerf.fields import KPlanesField, NeRFField, RadianceField, contract_unit, field_coords, uncontract_unit
 from senerf.fields.base import as_aabb, check_points
 
 
@@ -94,3 +96,58 @@ def test_view_dependent_fields_refuse_missing_or_misshapen_directions(make):
             field(xyz, dirs)
     sigma, rgb = field(xyz, torch.tensor([[0.0, 0.0, 1.0]] * 2))
     assert sigma.shape == (2,) and rgb.shape == (2, 3)
+
+
+# ---------------------------------------------------------------------------------------------------------
+# The scene contraction of unbounded fields
+
+
+def _contract_reference(u: np.ndarray) -> np.ndarray:
+    """mip-NeRF 360's contraction in the L-infinity norm, point by point, halved into [-1, 1]."""
+    out = np.empty_like(u)
+    for i, p in enumerate(u):
+        n = max(abs(p[0]), abs(p[1]), abs(p[2]))
+        out[i] = p / 2 if n <= 1 else (2 - 1 / n) * (p / n) / 2
+    return out
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_contraction_is_the_l_infinity_scene_contraction_and_inverts(dtype):
+    rng = np.random.default_rng(0)
+    u = np.concatenate([rng.uniform(-1, 1, (200, 3)), rng.normal(0, 30, (200, 3)), [[1, 0, 0], [0, -1, 1]]])
+    got = contract_unit(torch.tensor(u, dtype=dtype))
+    tol = 1e-6 if dtype == torch.float32 else 1e-12
+    np.testing.assert_allclose(got.numpy(), _contract_reference(u), rtol=tol, atol=tol)
+    assert got.abs().max() < 1.0
+    back = uncontract_unit(got)
+    np.testing.assert_allclose(back.numpy(), u, rtol=1e-4 if dtype == torch.float32 else 1e-10)
+
+
+def test_contraction_is_continuous_across_the_box_face_and_monotone_outward():
+    r = torch.linspace(0.0, 1e4, 20001, dtype=torch.float64) ** 1.0
+    ray = torch.stack([r, 0.3 * r, -0.2 * r], dim=-1)
+    c = contract_unit(ray)[:, 0]
+    assert (c[1:] > c[:-1]).all()                                           # strictly outward
+    face = torch.tensor([[1.0 - 1e-9, 0.0, 0.0], [1.0 + 1e-9, 0.0, 0.0]], dtype=torch.float64)
+    assert abs(float(contract_unit(face)[1, 0] - contract_unit(face)[0, 0])) < 1e-8
+    assert float(contract_unit(torch.tensor([[1e30, 0.0, 0.0]]))[0, 0]) == pytest.approx(1.0)
+
+
+def test_field_coords_contract_all_finite_points_and_leave_nan_ones_outside():
+    box = as_aabb([[-2.0, -1.0, 0.0], [2.0, 1.0, 4.0]])
+    xyz = torch.tensor([[0.0, 0.0, 2.0], [100.0, 0.0, 2.0], [float("inf"), 0.0, 2.0], [float("nan"), 0.0, 0.0]])
+    u, inside = field_coords(xyz, box, contract=True)
+    assert inside.tolist() == [True, True, True, False]
+    assert torch.isfinite(u).all() and u.abs().max() <= 1.0
+    assert u[0].tolist() == [0.0, 0.0, 0.0] and float(u[2, 0]) == pytest.approx(1.0)
+    assert field_coords(xyz, box, contract=False)[1].tolist() == [True, False, False, False]
+
+
+def test_a_contracted_field_has_density_far_outside_its_box():
+    gen = torch.Generator().manual_seed(0)
+    far = torch.tensor([[0.0, 0.0, 0.0], [50.0, -30.0, 7.0], [1e6, 0.0, 0.0]])
+    for make in (lambda c: KPlanesField([[-1.0] * 3, [1.0] * 3], resolution=8, multires=(1,), contract=c,
+                                        generator=gen),
+                 lambda c: NeRFField([[-1.0] * 3, [1.0] * 3], n_freqs=2, hidden=16, contract=c, generator=gen)):
+        assert (make(True).density(far) > 0).all()
+        assert (make(False).density(far)[1:] == 0).all()

@@ -1,11 +1,12 @@
 """Tests of senerf/fields/occupancy.py: cells, decay, dilation and axis order, by hand."""
 
+import numpy as np
 import pytest
 import torch
 
-from senerf.fields import OccupancyGrid
+from senerf.fields import OccupancyGrid, field_coords
 
-from .analytic_fields import BallField
+from .analytic_fields import BallField, ConstantField
 
 
 def test_fresh_grid_full_outside_never():
@@ -76,3 +77,25 @@ def test_occupancy_grid_needs_at_least_one_cell():
             OccupancyGrid([[-1.0] * 3, [1.0] * 3], resolution=bad)
     grid = OccupancyGrid([[-1.0] * 3, [1.0] * 3], resolution=1)
     assert grid.mask.shape == (1,) and grid.is_occupied(torch.zeros(1, 3)).tolist() == [True]
+
+
+def test_a_contracted_grid_covers_all_of_space_with_cells_that_grow_outward():
+    g = OccupancyGrid([[-1.0] * 3, [1.0] * 3], 8, threshold=1.0, dilate=0, contract=True)
+    far = torch.tensor([[0.1, 0.0, 0.0], [40.0, 0.0, 0.0], [-1e5, 3.0, 2e4], [float("nan"), 0.0, 0.0]])
+    assert g.is_occupied(far).tolist() == [True, True, True, False]   # a fresh grid: everywhere but NaN
+    # the cell centres, mapped back through the contraction, land in the cells they stand for
+    centres = g.cell_centers()
+    u, _ = field_coords(centres, g.aabb, contract=True)
+    ijk = ((u + 1.0) * 4.0).floor().long()
+    flat = (ijk[:, 0] * 8 + ijk[:, 1]) * 8 + ijk[:, 2]
+    assert torch.equal(flat, torch.arange(8 ** 3))
+    # a constant density 0.3 per unit: a cell counts its density times its size relative to an inner cell,
+    # 1 / (2 - m)^2 at contracted radius m (cells of the outer two rings: m = 1.25 and 1.75 -> 1.78 and 16)
+    frac = g.update(ConstantField(value=0.3))
+    m = np.abs(np.arange(8) + 0.5 - 4.0) / 2.0                       # per-axis |contracted coordinate| x 2
+    radius = np.maximum.reduce(np.meshgrid(m, m, m, indexing="ij"))
+    stretch = np.where(radius > 1.0, 1.0 / (2.0 - radius) ** 2, 1.0)
+    assert frac == pytest.approx(float(np.mean(0.3 * stretch > 1.0)))
+    assert 0.0 < frac < 1.0
+    assert not bool(g.is_occupied(torch.tensor([[0.0, 0.0, 0.0]]))[0])
+    assert bool(g.is_occupied(torch.tensor([[100.0, 0.0, 0.0]]))[0])

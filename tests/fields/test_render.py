@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 import torch
 
-from senerf.fields import EMPTY_ACC, KPlanesField, OccupancyGrid, render_image, render_rays, volume_render
+from senerf.fields import (EMPTY_ACC, KPlanesField, OccupancyGrid, bin_distortion, render_image, render_rays,
+                           volume_render)
 
 from .analytic_fields import BallField, ConstantField
 
@@ -295,3 +296,25 @@ def test_render_image_refuses_origins_and_dirs_that_are_not_h_w_3(o_shape, d_sha
         render_image(BallField(), np.zeros(o_shape), np.ones(d_shape), 1.0, 3.0, S)
     o, d = np.array([[[0.0, 0.0, -2.0]]]), np.array([[[0.0, 0.0, 1.0]]])
     assert render_image(BallField(), o, d, 1.0, 3.0, S)["acc"].shape == (1, 1)
+
+
+def test_bin_distortion_is_the_double_sum_of_mip_nerf_360():
+    w = torch.rand(6, 9, generator=torch.Generator().manual_seed(2), dtype=torch.float64) / 3
+    s = w.shape[1]
+    mid = (torch.arange(s, dtype=torch.float64) + 0.5) / s                 # bins [k/S, (k+1)/S]
+    pairs = (w[:, :, None] * w[:, None, :] * (mid[:, None] - mid[None, :]).abs()).sum(dim=(1, 2))
+    want = (pairs + (w.square() / s).sum(dim=1) / 3).mean()
+    torch.testing.assert_close(bin_distortion(w), want)
+    peaked, spread = torch.zeros(1, 9), torch.full((1, 9), 1.0 / 9)
+    peaked[0, 4] = 1.0
+    assert float(bin_distortion(peaked)) < float(bin_distortion(spread))   # it rewards compact weights
+
+
+def test_a_contracting_field_is_sampled_beyond_its_box():
+    field = KPlanesField([[-1.0] * 3, [1.0] * 3], resolution=8, multires=(1,), contract=True)
+    o, d = torch.tensor([[0.0, 0.0, -3.0]]), torch.tensor([[0.0, 0.0, 1.0]])
+    out = render_rays(field, o, d, torch.tensor([0.1]), torch.tensor([1e3]), 32, randomized=False)
+    t = out["t"][0]
+    inside = int(((t > 2.0) & (t < 4.0)).sum())                 # the box spans t in [2, 4]
+    # contracted path: 2/3 from the camera (at 3 box units) to the box, 2 across it, ~1 beyond: 2 / 3.67 of 32
+    assert t[-1] > 10.0 and 16 <= inside <= 19

@@ -1,4 +1,5 @@
-"""Tests of senerf/fields/sampling.py: stratified bins and the NDC map, against hand-written formulas."""
+"""Tests of senerf/fields/sampling.py: stratified bins, contracted bins and the NDC map, against hand-written
+formulas."""
 
 import numpy as np
 import pytest
@@ -6,7 +7,8 @@ import torch
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from senerf.fields import ndc_rays, ndc_t_to_depth, stratified_bins
+from senerf.fields import (bin_fractions, contracted_bins, linear_bins, ndc_rays, ndc_t_to_depth, ray_bins,
+                           stratified_bins)
 
 
 @settings(max_examples=30, deadline=None)
@@ -112,3 +114,55 @@ def test_ndc_rays_refuses_a_near_plane_at_or_behind_the_camera(near):
         ndc_rays(o, d, 2.0, 2.0, 4.0, 4.0, near=near)
     o_ndc, _ = ndc_rays(o, d, 2.0, 2.0, 4.0, 4.0, near=1e-3)
     torch.testing.assert_close(o_ndc[:, 2], torch.full((2,), -1.0))   # the origin moved to z = near: z' = -1
+
+
+# ---------------------------------------------------------------------------------------------------------
+# Contracted bins (unbounded scenes)
+
+
+def _inverse_radial(c: np.ndarray) -> np.ndarray:
+    """Box-unit distance from the centre of a radial ray's point at (unhalved) contracted coordinate ``c``."""
+    return np.where(c <= 1.0, c, 1.0 / (2.0 - np.minimum(c, 2.0 - 1e-12)))
+
+
+def test_contracted_bins_are_linear_while_the_segment_stays_in_the_box():
+    o = torch.tensor([[-0.5, 0.2, 0.1], [0.3, -0.9, 0.0]], dtype=torch.float64)
+    d = torch.nn.functional.normalize(torch.tensor([[1.0, 0.1, 0.0], [0.0, 1.0, 0.2]], dtype=torch.float64), dim=-1)
+    near, far = torch.tensor([0.05, 0.1], dtype=torch.float64), torch.tensor([1.2, 1.5], dtype=torch.float64)
+    u = bin_fractions(near, 16, torch.Generator().manual_seed(1))
+    t = contracted_bins(o, d, near, far, u, [[-1.0] * 3, [1.0] * 3])
+    torch.testing.assert_close(t, linear_bins(near, far, u), rtol=1e-9, atol=1e-9)
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_contracted_bin_edges_are_evenly_spaced_in_contracted_space(dtype):
+    # a radial ray from the centre of a box of half size 2 (box units = world / 2), out to 1e4 world units
+    o, d = torch.zeros(1, 3, dtype=dtype), torch.tensor([[1.0, 0.0, 0.0]], dtype=dtype)
+    near, far = torch.tensor([0.2], dtype=dtype), torch.tensor([1e4], dtype=dtype)
+    edges = torch.arange(33, dtype=dtype)[None, :32] * 0.0      # u = 0: the bin's start
+    t = contracted_bins(o, d, near, far, edges, [[-2.0] * 3, [2.0] * 3])[0].double().numpy()
+    c0, c1 = 0.1, 2.0 - 1.0 / 5e3                                  # contracted near and far (unhalved)
+    want = 2.0 * _inverse_radial(c0 + (c1 - c0) * np.arange(32) / 32)
+    np.testing.assert_allclose(t, want, rtol=0.02)
+    assert (np.diff(t) > 0).all()
+    inside = want < 1.8                                              # (the box face is at 2)
+    np.testing.assert_allclose(t[inside], want[inside], rtol=1e-4)   # exact where the contraction is the identity
+
+
+def test_contracted_bins_pair_bin_by_bin_and_stay_within_the_bounds():
+    gen = torch.Generator().manual_seed(3)
+    o = torch.randn(64, 3, generator=gen) * 3
+    d = torch.nn.functional.normalize(torch.randn(64, 3, generator=gen), dim=-1)
+    near, far = torch.full((64,), 0.1), torch.full((64,), 500.0)
+    near[0] = far[0] = 7.0                                          # an empty segment
+    box = [[-1.0, -2.0, -1.0], [1.0, 0.0, 3.0]]
+    u1 = bin_fractions(near, 24, gen)
+    t1 = contracted_bins(o, d, near, far, u1, box)
+    assert torch.equal(t1, contracted_bins(o, d, near, far, u1, box))       # a function of the ray only
+    assert (t1 >= near[:, None]).all() and (t1 <= far[:, None]).all() and (t1[0] == 7.0).all()
+    assert (t1[:, 1:] >= t1[:, :-1]).all()
+    lo = contracted_bins(o, d, near, far, torch.zeros_like(u1), box)
+    hi = contracted_bins(o, d, near, far, torch.full_like(u1, 1.0 - 1e-6), box)
+    assert (lo <= t1).all() and (t1 <= hi + 1e-4).all()                       # each point in its bin
+    assert torch.equal(ray_bins(o, d, near, far, u1, None), linear_bins(near, far, u1))
+    assert torch.equal(ray_bins(o, d, near, far, u1, torch.tensor(box)), t1)

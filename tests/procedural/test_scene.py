@@ -201,3 +201,22 @@ def test_value_noise_is_a_smoothstep_blend_of_a_16_periodic_lattice():
     p = np.array([c[0] for c in cases]) - 8.0  # the texture samples the noise at local * freq + 8
     n = np.array([c[1] for c in cases])
     assert np.allclose(texture_color(tex, p)[:, 0], (n - 0.5) * 4.0 + 0.5, atol=1e-12)
+
+
+def test_cells_mix_the_checker_parity_with_a_16_periodic_cell_value_by_hand():
+    """'cells' at freq 2 (cells of 1/2 in local x, y; z ignored): t = 0.6 parity + 0.4 lattice[16 (i mod 16) +
+    (j mod 16)], here with lattice k / 256 so the index shows; neighbouring cells differ by at least 0.2."""
+    lat = np.arange(256) / 256.0
+    tex = ObjectTexture("cells", 2.0, np.array([[0.0, 0.0, 0.0], [1.0, 1.0, 1.0]]), {"lattice": lat})
+    pts = np.array([[0.1, 0.1, 0.0],     # cell (0, 0): even,            lattice[0]
+                    [0.6, 0.1, 5.0],     # cell (1, 0): odd,             lattice[16]
+                    [-0.2, 0.3, 0.0],    # cell (-1, 0): odd,            lattice[240]
+                    [8.1, 0.7, -1.0],    # cell (16, 1): odd,            lattice[1]
+                    [-3.9, -7.6, 0.0]])  # cell (-8, -16): even,         lattice[128]
+    t = np.array([0.0, 0.6 + 0.4 * 16 / 256, 0.6 + 0.4 * 240 / 256, 0.6 + 0.4 / 256, 0.4 * 128 / 256])
+    assert np.allclose(texture_color(tex, pts)[:, 0], t, atol=1e-12)
+    rng = np.random.default_rng(0)
+    tex = ObjectTexture("cells", 2.0, tex.colors, {"lattice": rng.uniform(size=256)})
+    p = rng.uniform(-9.0, 9.0, size=(2000, 3))
+    for step in ([0.5, 0.0, 0.0], [0.0, 0.5, 0.0]):
+        assert np.abs(texture_color(tex, p) - texture_color(tex, p + step))[:, 0].min() >= 0.2 - 1e-12

@@ -11,8 +11,7 @@ import pytest
 import torch
 
 from senerf.config import SelfTrainConfig
-from senerf.fields import stratified_bins
-from senerf.selftrain.distill import (DistillationLoss, PseudoRays, bins_with_fractions, gaussian_kernel,
+from senerf.selftrain.distill import (DistillationLoss, PseudoRays, gaussian_kernel,
                                       neighbour_offsets, prior_weights, unified_prior_weights)
 
 EDGE, DIAG = math.exp(-0.5), math.exp(-1.0)   # unnormalised 3 x 3 kernel, std 1: edge and diagonal neighbours
@@ -125,14 +124,6 @@ def test_unified_prior_weights_ignore_background_neighbours():
 def test_prior_weights_refuse_misshapen_arrays(call):
     with pytest.raises(ValueError):
         call()
-
-
-def test_bins_with_fractions_matches_stratified_bins():
-    near = torch.tensor([2.0, 1.0, 0.5])
-    far = torch.tensor([6.0, 3.0, 0.5])
-    t_ref = stratified_bins(near, far, 7, torch.Generator().manual_seed(4))
-    u = torch.rand(3, 7, generator=torch.Generator().manual_seed(4))
-    torch.testing.assert_close(bins_with_fractions(near, far, u), t_ref)
 
 
 # ---------------------------------------------------------------------------------------------------------

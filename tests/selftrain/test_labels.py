@@ -133,7 +133,7 @@ def test_pseudo_view_centre_problem_names_views_without_a_centre():
 # estimate_reliability on canned similarities (renders handed in, view_similarity replaced)
 
 
-def _canned_labels(monkeypatch, sims, acc, cfg, alpha):
+def _canned_labels(monkeypatch, sims, acc, cfg, alpha, model=ModelConfig()):
     """``estimate_reliability`` on ``P`` pseudo views whose per-pixel similarity is ``sims (P, H, W)`` and
     teacher opacity ``acc (P, H, W)`` (foreground: ``acc >= cfg.opacity_threshold``); no rendering, no
     features: the renders are handed in and ``view_similarity`` returns the canned values view by view."""
@@ -153,7 +153,7 @@ def _canned_labels(monkeypatch, sims, acc, cfg, alpha):
     known = dict(acc=np.ones((1, h, w), np.float32), z_depth=np.ones((1, h, w), np.float32))
     pseudo = dict(acc=acc, z_depth=np.ones((p, h, w), np.float32), rgb=np.zeros((p, h, w, 3), np.float32))
     extractor = lambda images: np.zeros((images.shape[0], h, w, 2), np.float32)  # noqa: E731
-    return estimate_reliability(None, None, None, scene, [0], np.stack([np.eye(4)] * p), extractor, cfg, alpha,
+    return estimate_reliability(None, None, model, scene, [0], np.stack([np.eye(4)] * p), extractor, cfg, alpha,
                                 known_features=np.zeros((1, h, w, 2), np.float32), renders=(known, pseudo))
 
 
@@ -196,6 +196,23 @@ def test_adaptive_labels_threshold_on_foreground_and_prior_on_foreground_only(mo
     np.testing.assert_array_equal(labels.prior, expected_prior.astype(np.float32))
     assert any(_has_neighbour(reliable[v], y, x) for v, y, x in zip(*np.nonzero(~fg)))   # the case arises
     assert labels.reliable_fraction == pytest.approx(reliable[fg].mean())
+
+
+def test_unbounded_labels_count_every_pixel_and_label_no_empty_space(monkeypatch):
+    """An unbounded scene has content in every pixel: a dim (low-opacity) teacher pixel is scored and thresholded
+    like any other, never left out as background nor labelled reliable empty space (catches the object-scene
+    opacity rules applied to a real capture)."""
+    rng = np.random.default_rng(3)
+    sims = rng.uniform(0.0, 0.9, size=(2, 6, 7))
+    acc = np.full((2, 6, 7), 0.9)
+    acc[:, :, :3] = 0.05           # below both the foreground and the empty-space opacity of an object scene
+    unbounded = ModelConfig(contract=True, near=0.1, far=100.0)
+    labels = _canned_labels(monkeypatch, sims, acc, SelfTrainConfig(threshold="adaptive"), 0.25, unbounded)
+    assert labels.foreground.all() and not labels.empty.any()
+    assert labels.tau == pytest.approx(_quantile_by_sorting(sims, 0.75), rel=1e-6)
+    np.testing.assert_array_equal(labels.weights, (sims > labels.tau).astype(np.float32))
+    as_object = _canned_labels(monkeypatch, sims, acc, SelfTrainConfig(threshold="adaptive"), 0.25)
+    assert as_object.empty[:, :, :3].all() and not as_object.foreground[:, :, :3].any()   # the rules differ
 
 
 def test_unified_labels_soft_weights_and_prior_one_minus_weight(monkeypatch):
@@ -245,7 +262,7 @@ def test_known_views_are_rendered_and_warped_into_with_their_own_intrinsics(monk
     for known, expect in (((k0, k1, k0), [k1, k0]), ((k0, k0, k0), [k0, k0])):
         seen.clear()
         scene = SimpleNamespace(intrinsics=k0, intrinsics_all=known, c2w=np.stack([np.eye(4)] * 3))
-        labels = estimate_reliability(None, None, None, scene, [1, 2], np.stack([np.eye(4)] * 2), extractor,
+        labels = estimate_reliability(None, None, ModelConfig(), scene, [1, 2], np.stack([np.eye(4)] * 2), extractor,
                                       SelfTrainConfig(), 0.15, known_features=np.zeros((2, h, w, 2), np.float32))
         assert seen["render"] == [expect, k0, k0]      # the known views, then the pseudo views one at a time
         assert seen["known_k"] == expect and seen["pseudo_k"] == k0 and labels.intrinsics == k0
@@ -385,7 +402,7 @@ def _canned_quality(monkeypatch, eval_idx=(3, 1), train_idx=(0, 2)):
     pseudo = dict(acc=acc, z_depth=np.ones((2, H, W), np.float32), rgb=np.repeat(teacher[..., None], 3, axis=-1))
     cfg = SelfTrainConfig(threshold="unified", beta=16.0, empty_opacity=0.0)
     extractor = lambda images: np.zeros((images.shape[0], H, W, 2), np.float32)  # noqa: E731
-    return reliability_mask_quality(None, None, None, scene, list(train_idx), eval_idx, extractor, cfg, 0.15,
+    return reliability_mask_quality(None, None, ModelConfig(), scene, list(train_idx), eval_idx, extractor, cfg, 0.15,
                                     max_error=0.1, known_features=np.zeros((m, H, W, 2), np.float32),
                                     renders=(known, pseudo)), scene
 
