@@ -19,7 +19,7 @@ from senerf.errors import InputError
 __all__ = ["main", "console", "build_parser", "parse_views"]
 
 PROG = "senerf-fit"
-_PROTOCOLS = ("extreme", "spread", "llff", "all", "infonerf4", "random8")
+_PROTOCOLS = ("extreme", "spread", "llff", "dtu", "all", "infonerf4", "random8")
 
 
 def parse_views(text: str) -> list[int]:
@@ -42,10 +42,11 @@ def build_parser() -> OneLineParser:
     g = p.add_argument_group("views")
     g.add_argument("--views", type=argument_type(parse_views),
                    help="training view indices, e.g. 0,1,51 (into the train split of a scene that has one)")
-    g.add_argument("--n-views", type=int_flag("--n-views"), help="number of training views (llff, spread, random8)")
+    g.add_argument("--n-views", type=int_flag("--n-views"), help="number of training views (llff, dtu, spread, random8)")
     g.add_argument("--protocol", choices=_PROTOCOLS,
                    help="few-shot protocol (default: extreme for the NeRF Synthetic scenes; spread for other scenes "
-                        "with a test split: 3 views spread over the train split; else llff: every 8th image tests)")
+                        "with a test split: 3 views spread over the train split; else llff: every 8th image tests; dtu: DTU's "
+                        "few-shot views 25, 22, 28, ... and its 25 test views)")
     g.add_argument("--test-views", type=int_flag("--test-views"), metavar="N",
                    help="score on N of the test views, spread evenly (default: all, as published tables)")
     g.add_argument("--scene-kind", choices=("unbounded", "object", "forward-facing"),

@@ -353,7 +353,7 @@ def build_parser() -> argparse.ArgumentParser:
                              "interrupted, 1 internal error.")
     p.add_argument("run", type=Path, help="a senerf-fit output folder (its --out)")
     p.add_argument("--path", choices=PATHS, default=None,
-                   help="orbit (default for object scenes), spiral (default for forward-facing scenes) or test "
+                   help="orbit (default for object and unbounded scenes), spiral (default for forward-facing scenes) or test "
                         "(the run's test views)")
     p.add_argument("--frames", type=int_flag("--frames", maximum=10000), default=None,
                    help=f"frames of an orbit or spiral (default {FRAMES_DEFAULT})")

@@ -274,3 +274,28 @@ def test_a_self_training_fit_on_cuda_end_to_end_and_resumed(tiny_scene, tmp_path
     assert [r["iteration"] for r in rows] == [0, 1] and all(np.isfinite(r["psnr"]) for r in rows)
     assert all(r["host"]["device"] == torch.cuda.get_device_name() for r in rows)
     assert senerf.fit(tiny_scene, out, **kwargs).metrics["iterations"] == rows
+
+
+def test_an_rgb_capture_around_a_room_is_fitted_unbounded_self_trained_and_orbited(tmp_path):
+    # Catches: an instant-ngp capture without alpha fitted as a box over black, aabb_scale ignored, the
+    # unbounded labelling (every pixel has content) or senerf-render's orbit failing on a contracted field.
+    import imageio.v3 as iio
+
+    from senerf.flythrough import main as render_main
+    from senerf.procedural import export_room_scene
+
+    room = export_room_scene(tmp_path / "room", n_views=12, width=16, height=16, aabb_scale=8)
+    lines = []
+    result = senerf.fit(room, tmp_path / "fit", **{**SMALL, "iterations": 1, "echo": lines.append},
+                        protocol="llff", n_views=4, selftrain=dict(n_pseudo_per_input=1))
+    run = json.loads((tmp_path / "fit" / "run.json").read_text())
+    model = run["settings"]["model"]
+    assert run["settings"]["scene_kind"] == "unbounded" and model["contract"] and model["bound"] is not None
+    assert run["settings"]["train"]["tv_weight"] == 0.0
+    assert any(line.startswith("fit: fitted as unbounded: RGB photos without alpha") for line in lines)
+    assert len(result.psnr) == 2 and np.isfinite(result.psnr).all()
+    labels = result.metrics["iterations"][1]["reliable_fraction"]
+    assert labels is not None and 0.0 < labels < 1.0   # every pseudo pixel scored, some reliable, some not
+    assert render_main([str(tmp_path / "fit"), "--frames", "3", "--quiet"]) == 0
+    frames = sorted((tmp_path / "fit" / "render" / "orbit_iter1").glob("rgb_*.png"))
+    assert len(frames) == 3 and all(iio.imread(f).std() > 0 for f in frames)

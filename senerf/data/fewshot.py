@@ -16,6 +16,9 @@ protocol       train / test
                scene of one's own, with no published views).
 ``llff``       Over *all* images: test = every 8th (``index % 8 == 0``); train = ``n_views`` (default 3)
                of the rest, spread evenly.
+``dtu``        DTU's few-shot protocol (RegNeRF, PixelNeRF) over a 49-image DTU scan: train = the first
+               ``n_views`` (default 3, at most 9) of :data:`DTU_TRAIN_VIEWS`; test = :data:`DTU_TEST_VIEWS`
+               (the other images are not used).
 ``views``      Explicit ``views``.  Split scenes (kind ``'object'`` with a non-empty ``'val'`` or ``'test'``
                split: Blender, or nerfstudio files with split lists): indices into the train split, test =
                the test split.  Others: indices into *all* images; test = the scene's test split minus the
@@ -37,7 +40,8 @@ from ..errors import InputError
 from .llff import llff_splits
 from .scene import Scene
 
-__all__ = ["fewshot_split", "spread_views", "PROTOCOLS", "EXTREME_VIEWS", "INFONERF4_VIEWS"]
+__all__ = ["fewshot_split", "spread_views", "PROTOCOLS", "EXTREME_VIEWS", "INFONERF4_VIEWS", "DTU_TRAIN_VIEWS",
+           "DTU_TEST_VIEWS"]
 
 #: NeRF Synthetic Extreme (3 views, indices into the train split), REFERENCE section 5.
 EXTREME_VIEWS = {
@@ -52,9 +56,12 @@ EXTREME_VIEWS = {
 }
 #: InfoNeRF's NeRF Synthetic 4-view protocol (indices into the train split).
 INFONERF4_VIEWS = (26, 86, 2, 55)
-PROTOCOLS = ("extreme", "infonerf4", "random8", "spread", "llff", "views", "all")
+#: DTU's few-shot training views, in order (the first 3, 6 or 9), and its test views (indices into the 49 images).
+DTU_TRAIN_VIEWS = (25, 22, 28, 40, 44, 48, 0, 8, 13)
+DTU_TEST_VIEWS = (1, 2, 9, 10, 11, 12, 14, 15, 23, 24, 26, 27, 29, 30, 31, 32, 33, 34, 35, 41, 42, 43, 45, 46, 47)
+PROTOCOLS = ("extreme", "infonerf4", "random8", "spread", "llff", "dtu", "views", "all")
 #: The number of training views of the protocols that take ``n_views``, when it is not given.
-_DEFAULT_N_VIEWS = {"random8": 8, "spread": 3, "llff": 3}
+_DEFAULT_N_VIEWS = {"random8": 8, "spread": 3, "llff": 3, "dtu": 3}
 
 
 def _views(views, n: int, what: str, field: str = "--views") -> np.ndarray:
@@ -130,8 +137,8 @@ def fewshot_split(scene: Scene, protocol: str = "extreme", views=None, n_views=N
     if views is not None and protocol not in ("extreme", "views"):
         raise InputError(f"explicit views are not used by protocol {protocol!r} (give --views without "
                          "--protocol; in Python, protocol 'views')", field="--views")
-    if n_views is not None and protocol not in ("llff", "random8", "spread"):
-        raise InputError(f"not used by protocol {protocol!r} (only 'llff', 'random8' and 'spread')",
+    if n_views is not None and protocol not in _DEFAULT_N_VIEWS:
+        raise InputError(f"not used by protocol {protocol!r} (only 'llff', 'dtu', 'random8' and 'spread')",
                          field="--n-views")
     train_split = scene.splits["train"]
     n_train = int(train_split.size)
@@ -163,6 +170,13 @@ def fewshot_split(scene: Scene, protocol: str = "extreme", views=None, n_views=N
         rest = held_out["train"]
         k = _n_views(n_views, _DEFAULT_N_VIEWS[protocol], int(rest.size), "non-held-out images", protocol)
         return spread_views(rest, k), held_out["test"]
+
+    if protocol == "dtu":
+        if n != 49:
+            raise InputError(f"the dtu protocol indexes the 49 images of a DTU scan; scene {scene.name!r} has {n}",
+                             field="--protocol")
+        k = _n_views(n_views, _DEFAULT_N_VIEWS[protocol], len(DTU_TRAIN_VIEWS), "DTU few-shot views", protocol)
+        return np.array(DTU_TRAIN_VIEWS[:k], dtype=np.int64), np.array(DTU_TEST_VIEWS, dtype=np.int64)
 
     # protocol == "views", views indexing all images
     train = _views(views, n, "indices into all images")

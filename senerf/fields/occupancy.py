@@ -24,6 +24,11 @@ class OccupancyGrid(nn.Module):
     its density times its stretch, the world size of the cell over that of a cell inside the AABB, so that the
     threshold means the same optical thickness per cell near and far.
 
+    :meth:`mark_seen` restricts the grid to the cells the training rays cross (as instant-NGP marks the cells no
+    training camera sees): nothing constrains the density there, so a novel view that looks through such a
+    cell (the space just in front of the camera, between the training cameras' frustums) would render
+    whatever density it was initialised with.
+
     Args:
         aabb: ``(2, 3)`` box.
         resolution: cells per side.
@@ -47,6 +52,7 @@ class OccupancyGrid(nn.Module):
         n = self.resolution ** 3
         self.register_buffer("density_grid", torch.full((n,), float("inf")))
         self.register_buffer("mask", torch.ones(n, dtype=torch.bool))
+        self.register_buffer("seen", torch.ones(n, dtype=torch.bool))
 
     def cell_centers(self) -> torch.Tensor:
         """``(res^3, 3)`` world centres of the cells, flat index ``(i * res + j) * res + k`` for x, y, z."""
@@ -83,8 +89,38 @@ class OccupancyGrid(nn.Module):
         if self.dilate > 0:
             k = 2 * self.dilate + 1
             occ = torch.nn.functional.max_pool3d(occ, k, stride=1, padding=self.dilate)
-        self.mask.copy_(occ.reshape(-1) > 0.5)
+        self.mask.copy_((occ.reshape(-1) > 0.5) & self.seen)
         return self.occupied_fraction()
+
+    @torch.no_grad()
+    def mark_seen(self, origins: torch.Tensor, dirs: torch.Tensor, near: torch.Tensor, far: torch.Tensor,
+                  n_points: int = 256, max_rays: int = 1 << 17, chunk: int = 4096) -> float:
+        """Keep only the cells that the rays cross (dilated by one cell, which closes the gaps between
+        neighbouring rays); returns the fraction of cells seen.
+
+        Args:
+            origins, dirs: ``(R, 3)`` rays; near, far: ``(R,)`` their bounds.
+            n_points: points per ray, evenly spaced in the grid's (contracted) coordinates.
+            max_rays: at most this many rays are traced, every ``ceil(R / max_rays)``-th one.
+        """
+        from .sampling import ray_bins
+
+        stride = max(1, -(-origins.shape[0] // max_rays))
+        o, d, n, f = (x[::stride] for x in (origins, dirs, near, far))
+        r = self.resolution
+        hit = torch.zeros(r ** 3, dtype=torch.bool, device=self.aabb.device)
+        for k in range(0, o.shape[0], chunk):
+            u = torch.full((min(chunk, o.shape[0] - k), n_points), 0.5, dtype=o.dtype, device=o.device)
+            t = ray_bins(o[k:k + chunk], d[k:k + chunk], n[k:k + chunk], f[k:k + chunk], u,
+                         self.aabb if self.contract else None)
+            pts = (o[k:k + chunk, None, :] + t[..., None] * d[k:k + chunk, None, :]).reshape(-1, 3)
+            c, inside = field_coords(pts, self.aabb, self.contract)
+            ijk = ((c[inside] + 1.0) * (0.5 * r)).floor().long().clamp(0, r - 1)
+            hit[(ijk[:, 0] * r + ijk[:, 1]) * r + ijk[:, 2]] = True
+        grown = torch.nn.functional.max_pool3d(hit.float().view(1, 1, r, r, r), 3, stride=1, padding=1)
+        self.seen.copy_(grown.reshape(-1) > 0.5)
+        self.mask &= self.seen
+        return float(self.seen.float().mean())
 
     def occupied_fraction(self) -> float:
         """Fraction of occupied cells."""

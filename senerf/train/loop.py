@@ -157,6 +157,8 @@ def train_field(field: torch.nn.Module, rays: RayBatchSource, cfg: TrainConfig,
     generator.manual_seed(cfg.seed)
     optimizer = torch.optim.Adam(field.parameters(), lr=cfg.lr, eps=1e-15)
     occupancy = make_occupancy(model, device)
+    if occupancy is not None and model.contract:   # an unbounded scene: render nothing where no ray has looked
+        occupancy.mark_seen(rays.origins, rays.dirs, rays.near, rays.far)
     start, seconds_before = 0, 0.0
     ckpt = Path(checkpoint) if checkpoint is not None else None
     if ckpt is not None and ckpt.exists():

@@ -207,19 +207,27 @@ def choose_model(scene, train_idx, overrides: Mapping[str, Any] | None = None,
 
 
 #: An unbounded scene's rays run from this many camera distances (to what the cameras look at) to ...
-UNBOUNDED_NEAR = 0.05
+UNBOUNDED_NEAR = 0.25
 #: ... this many (contracted to within 0.1 % of the edge of the field's space)
 UNBOUNDED_FAR = 1000.0
+#: An unbounded field's initial density, ``exp(shift)`` per unit: space no ray constrains stays nearly clear
+UNBOUNDED_DENSITY_SHIFT = -1.5
 
 
 def _unbounded(chosen: dict, why: dict, scene, dist: float) -> None:
     """The settings of an unbounded scene: the box the cameras look at is the inner region of a contracted field,
-    rays run from ``UNBOUNDED_NEAR`` to ``UNBOUNDED_FAR`` camera distances, clipped to the scene's ``bound``."""
+    rays run from ``UNBOUNDED_NEAR`` to ``UNBOUNDED_FAR`` camera distances, clipped to the scene's ``bound``.
+
+    The near bound is a quarter of the distance to what the cameras look at: a capture walked around an object
+    holds nothing much nearer, and the space right in front of each camera is seen by that camera alone, where
+    a density that explains one photo (a floater) costs nothing."""
     near, far = float(f"{UNBOUNDED_NEAR * dist:.4g}"), float(f"{UNBOUNDED_FAR * dist:.4g}")
-    chosen.update(contract=True, near=near, far=far)
-    why["contract"] = "unbounded scene: the box is kept as it is, all of space beyond it is contracted into the field"
+    chosen.update(contract=True, near=near, far=far, density_shift=UNBOUNDED_DENSITY_SHIFT)
+    why["contract"] = ("unbounded scene: the box is kept as it is, all of space beyond it is contracted into the "
+                       f"field; initial density exp({UNBOUNDED_DENSITY_SHIFT:g}) per unit")
     why["near"] = f"rays from {near:.4g} to {far:.4g} ({UNBOUNDED_NEAR:g} and {UNBOUNDED_FAR:g} camera distances)"
-    why["occupancy_resolution"] = "64^3 occupancy grid over the contracted space skips empty space"
+    why["occupancy_resolution"] = ("64^3 occupancy grid over the contracted space skips empty space and the cells "
+                                   "no training ray crosses")
     if scene.bound is not None:
         chosen["bound"] = tuple(tuple(float(v) for v in row) for row in scene.bound)
         lo, hi = chosen["bound"]

@@ -108,6 +108,18 @@ def test_views_ngp_without_splits_tests_on_the_rest():
     assert train.tolist() == [1, 3] and test.tolist() == [0, 2, 4]
 
 
+@pytest.mark.parametrize("n_views", [None, 3, 6, 9])
+def test_dtu_protocol_takes_the_published_views_in_order_and_tests_on_its_25(n_views):
+    # RegNeRF's DTU split, written out by hand here: train 25, 22, 28 | 40, 44, 48 | 0, 8, 13.
+    scene = make_scene(49, {"train": np.arange(49)}, kind="unbounded", name="scan24")
+    train, test = fewshot_split(scene, "dtu", n_views=n_views)
+    assert train.tolist() == [25, 22, 28, 40, 44, 48, 0, 8, 13][:n_views or 3]
+    assert test.tolist() == [1, 2, 9, 10, 11, 12, 14, 15, 23, 24, 26, 27, 29, 30, 31, 32, 33, 34, 35, 41, 42, 43, 45,
+                             46, 47]
+    with pytest.raises(InputError, match="must be in"):
+        fewshot_split(scene, "dtu", n_views=10)
+
+
 def test_all_protocol():
     train, test = fewshot_split(blender_like(), "all")
     assert train.tolist() == list(range(10, 110)) and test.tolist() == list(range(110, 130))
@@ -131,6 +143,7 @@ def test_all_protocol():
         (dict(protocol="spread", n_views=101), "--n-views", "must be in"),
         (dict(protocol="spread", views=[1]), "--views", "not used"),
         (dict(protocol="fancy"), "--protocol", "unknown protocol"),
+        (dict(protocol="dtu"), "--protocol", "the 49 images of a DTU scan"),
     ],
 )
 def test_bad_protocol_input(kwargs, field, problem):

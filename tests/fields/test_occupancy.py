@@ -99,3 +99,27 @@ def test_a_contracted_grid_covers_all_of_space_with_cells_that_grow_outward():
     assert 0.0 < frac < 1.0
     assert not bool(g.is_occupied(torch.tensor([[0.0, 0.0, 0.0]]))[0])
     assert bool(g.is_occupied(torch.tensor([[100.0, 0.0, 0.0]]))[0])
+
+
+@pytest.mark.parametrize("contract", [False, True])
+def test_cells_no_training_ray_crosses_stay_empty_after_every_update(contract):
+    # Catches: a novel view rendering the untouched initial density of space no training camera saw (the space
+    # right in front of a test camera, behind the training cameras), or a seen cell along a ray left out.
+    g = OccupancyGrid([[-1.0] * 3, [1.0] * 3], 16, threshold=0.01, dilate=0, contract=contract)
+    ys, zs = torch.meshgrid(torch.linspace(-0.1, 0.1, 24), torch.linspace(-0.1, 0.1, 24), indexing="ij")
+    dirs = torch.stack([torch.ones_like(ys), ys, zs], -1).reshape(-1, 3)
+    dirs = dirs / dirs.norm(dim=-1, keepdim=True)                    # a bundle of rays along +x ...
+    origins = torch.tensor([-1.5, 0.0, 0.0]).expand_as(dirs)         # ... from a camera outside the box
+    near, far = torch.full((dirs.shape[0],), 0.1), torch.full((dirs.shape[0],), 1e3 if contract else 6.0)
+    seen = g.mark_seen(origins, dirs, near, far)
+    assert 0.0 < seen < 0.5
+    on_axis = torch.tensor([[x, 0.0, 0.0] for x in np.linspace(-0.9, 0.9, 10)])
+    assert g.is_occupied(on_axis).all()                               # every cell the rays cross
+    aside = torch.tensor([[0.0, 0.9, 0.0], [0.0, 0.0, -0.9], [0.5, -0.8, 0.6]])  # outside the bundle
+    assert not g.is_occupied(aside).any()
+    g.update(ConstantField(value=1.0))                                # dense everywhere: only the seen cells
+    assert g.is_occupied(on_axis).all() and not g.is_occupied(aside).any()
+    assert g.occupied_fraction() == pytest.approx(seen)
+    if contract:   # behind the camera and far beyond the box along the bundle
+        assert not g.is_occupied(torch.tensor([[-50.0, 0.0, 0.0]])).any()
+        assert g.is_occupied(torch.tensor([[50.0, 0.0, 0.0]])).all()

@@ -175,6 +175,31 @@ def test_float32_far_from_origin():
         assert np.abs(uv[ok] - uv_ref[ok]).max() < 0.01
 
 
+@pytest.mark.parametrize("far", [1e3, 1e5])
+def test_a_far_background_in_float32_warps_onto_its_homography_and_is_not_occluded_by_itself(far):
+    # An unbounded scene's background lies up to ~1000 camera distances away; its z-depths are rendered in
+    # float32.  Its pixels must land where the plane's homography (computed apart, in float64) puts them, which
+    # tends to the infinite homography K R_dst^T R_src K^-1, and the destination's own far depth must not occlude
+    # them (the occlusion test is relative).
+    n, d = np.array([0.0, 0.0, 1.0]), -far
+    src = look_at([0.5, -3.0, 2.5], [0.0, 0.0, 0.0])
+    dst = look_at([0.0, -3.1, 2.3], [0.1, 0.05, 0.0])   # a pseudo view 10 degrees away
+    z_src, z_dst = plane_depth(K, src, n, d), plane_depth(K, dst, n, d)
+    assert np.isfinite(z_src).all() and z_src.min() > 0.5 * far
+    uv, ok = reproject(z_src.astype(np.float32), K, src, K, dst, z_depth_dst=z_dst.astype(np.float32))
+    uv_ref = apply_h(homography(K, src, K, dst, n, d), K)
+    lands = (uv_ref[..., 0] >= 0) & (uv_ref[..., 0] < K.width) & (uv_ref[..., 1] >= 0) & (uv_ref[..., 1] < K.height)
+    inner = lands & (uv_ref[..., 0] > 1) & (uv_ref[..., 0] < K.width - 1) & (uv_ref[..., 1] > 1) \
+        & (uv_ref[..., 1] < K.height - 1)
+    assert inner.sum() > 5000 and ok[inner].all() and not ok[~lands].any()
+    assert np.abs(uv[ok] - uv_ref[ok]).max() < 0.01
+    r_src, r_dst = src[:3, :3], dst[:3, :3]
+    kmat = np.array([[K.fx, 0, K.cx], [0, K.fy, K.cy], [0, 0, 1.0]])
+    uv_inf = apply_h(kmat @ r_dst.T @ r_src @ np.linalg.inv(kmat), K)
+    parallax = K.fx * np.linalg.norm(src[:3, 3] - dst[:3, 3]) / z_src.min()   # pixels, an upper bound
+    assert np.abs(uv[ok] - uv_inf[ok]).max() < 2 * parallax + 0.01
+
+
 @pytest.mark.parametrize("scale", [1e-6, 1e6])
 def test_scale_invariance_extreme_depths(scale):
     n, d = np.array([0.0, 0.0, 1.0]), 0.0
