@@ -210,7 +210,8 @@ def choose_model(scene, train_idx, overrides: Mapping[str, Any] | None = None,
 UNBOUNDED_NEAR = 0.25
 #: ... this many (contracted to within 0.1 % of the edge of the field's space)
 UNBOUNDED_FAR = 1000.0
-#: An unbounded field's initial density, ``exp(shift)`` per unit: space no ray constrains stays nearly clear
+#: An unbounded field's initial density, ``exp(shift)`` per unit: the far bins are hundreds of units long, and from
+#: ``exp(0)`` a dense fit of DTU scan24 collapses (8.6 dB against 19.0 at 600 steps)
 UNBOUNDED_DENSITY_SHIFT = -1.5
 
 
