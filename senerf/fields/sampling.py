@@ -7,7 +7,7 @@ import torch
 
 from .base import contract_unit
 
-__all__ = ["stratified_bins", "bin_fractions", "linear_bins", "contracted_bins", "ray_bins", "ndc_rays",
+__all__ = ["bin_fractions", "linear_bins", "contracted_bins", "ray_bins", "ndc_rays",
            "ndc_t_to_depth", "CONTRACTED_CANDIDATES"]
 
 #: Distances per ray, geometrically spaced from near to far, whose contracted positions place contracted bins.
@@ -19,27 +19,6 @@ def check_rays(rays_o: torch.Tensor, rays_d: torch.Tensor) -> None:
     if rays_o.ndim != 2 or rays_o.shape[1] != 3 or rays_d.shape != rays_o.shape:
         raise ValueError(f"rays_o/rays_d: expected equal shapes (R, 3), got {tuple(rays_o.shape)}, "
                          f"{tuple(rays_d.shape)}")
-
-
-def stratified_bins(near: torch.Tensor, far: torch.Tensor, n_bins: int,
-                    generator: torch.Generator | None = None, randomized: bool = True) -> torch.Tensor:
-    """One point per evenly spaced bin.
-
-    Bin ``k`` of a ray is ``[near + k (far - near) / n_bins, near + (k + 1) (far - near) / n_bins)``; the
-    point is ``near + (k + u) (far - near) / n_bins`` with ``u ~ U[0, 1)`` from ``generator``
-    (``randomized=False``: ``u = 0.5``, the bin centre).  Bin k has the same bounds for every call, so a
-    teacher and a student sampled with the same near/far pair bin by bin.
-
-    Args:
-        near: ``(R,)`` start distances.
-        far: ``(R,)`` end distances, ``>= near``.
-        n_bins: bins per ray.
-        generator: torch.Generator on ``near``'s device (required when ``randomized``).
-    Returns:
-        t ``(R, n_bins)``, increasing along each ray.
-    """
-    _check_bounds(near, far)
-    return linear_bins(near, far, bin_fractions(near, n_bins, generator, randomized))
 
 
 def _check_bounds(near: torch.Tensor, far: torch.Tensor) -> None:
@@ -56,8 +35,8 @@ def bin_fractions(near: torch.Tensor, n_bins: int, generator: torch.Generator | 
     if randomized:
         if generator is None:
             raise ValueError("generator: required when randomized=True")
-        return torch.rand(near.shape[0], n_bins, generator=generator, dtype=near.dtype, device=near.device)
-    return torch.full((near.shape[0], n_bins), 0.5, dtype=near.dtype, device=near.device)
+        return torch.rand(near.numel(), n_bins, generator=generator, dtype=near.dtype, device=near.device)
+    return torch.full((near.numel(), n_bins), 0.5, dtype=near.dtype, device=near.device)
 
 
 def linear_bins(near: torch.Tensor, far: torch.Tensor, u: torch.Tensor) -> torch.Tensor:
@@ -118,6 +97,7 @@ def ray_bins(origins: torch.Tensor, dirs: torch.Tensor, near: torch.Tensor, far:
     """The sample distances ``t (R, S)`` of fractions ``u (R, S)``: :func:`linear_bins`, or :func:`contracted_bins`
     around ``contract_aabb`` (a field's box when it contracts space: :attr:`RadianceField.contract`)."""
     if contract_aabb is None:
+        _check_bounds(near, far)
         return linear_bins(near, far, u)
     return contracted_bins(origins, dirs, near, far, u, contract_aabb)
 

@@ -7,8 +7,13 @@ import torch
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from senerf.fields import (bin_fractions, contracted_bins, linear_bins, ndc_rays, ndc_t_to_depth, ray_bins,
-                           stratified_bins)
+from senerf.fields import bin_fractions, contracted_bins, linear_bins, ndc_rays, ndc_t_to_depth, ray_bins
+
+
+def stratified_bins(near, far, n_bins, generator=None, randomized=True):
+    """Even bins with one sample each, as ``render_rays`` places them for a bounded field (``ray_bins``)."""
+    rays = torch.zeros(near.numel(), 3), torch.tensor([[0.0, 0.0, 1.0]]).expand(near.numel(), 3)
+    return ray_bins(*rays, near, far, bin_fractions(near, n_bins, generator, randomized))
 
 
 @settings(max_examples=30, deadline=None)
