@@ -106,10 +106,10 @@ def build_scenes(out: Path, coeffs, seed: int = 0) -> dict:
 def common_psnr(fit_dir: Path, truth: dict, iteration: int) -> float:
     """Mean PSNR of a finished fit's ``iteration`` rendered at ``truth['c2w'] (n, 4, 4)`` with
     ``truth['intrinsics']``, against ``truth['rgb'] (n, H, W, 3)`` in [0, 1]."""
-    from senerf.flythrough import load_fitted_run
+    from senerf.flythrough import load_run
     from senerf.train import render_views
 
-    run = load_fitted_run(fit_dir, iteration=iteration)
+    run = load_run(fit_dir, iteration=iteration)
     out = render_views(run.field, run.model, truth["intrinsics"], truth["c2w"], occupancy=run.occupancy,
                        progress=False)
     mse = ((np.clip(out["rgb"], 0, 1) - truth["rgb"]) ** 2).reshape(len(truth["rgb"]), -1).mean(1)

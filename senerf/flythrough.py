@@ -11,13 +11,10 @@ at once are not supported.
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import json
 import os
 import shutil
 import sys
-import warnings
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -27,9 +24,9 @@ from senerf.cliargs import (THREADS_HELP, OneLineParser, check_device, float_fla
                             short_openmp_waits, threads_flag)
 from senerf.errors import InputError
 from senerf.memory import physical_memory_bytes
-from senerf.runfolder import METRICS_FILE, RUN_FILE, checkpoint_path, finished_iterations, read_metrics, read_run
+from senerf.fitted import FittedRun, load_run, with_iteration
 
-__all__ = ["FittedRun", "load_fitted_run", "with_iteration", "path_cameras", "render_frames", "side_by_side",
+__all__ = ["path_cameras", "render_frames", "side_by_side",
            "write_output", "main", "console", "PATHS"]
 
 PROG = "senerf-render"
@@ -38,105 +35,6 @@ PATHS = ("orbit", "spiral", "test")
 #: Frames of an orbit or spiral when ``--frames`` is not given.
 FRAMES_DEFAULT = 60
 _RECORD = "path.json"
-
-
-@dataclass(frozen=True, eq=False)
-class FittedRun:
-    """A finished iteration of a ``senerf-fit`` run, ready to render.
-
-    Attributes:
-        scene: the :class:`senerf.data.Scene` named by ``run.json`` (at the run's downscale).
-        model: the run's :class:`senerf.config.ModelConfig`.
-        field: the field the iteration ended with, in eval mode, on the requested device.
-        occupancy: its occupancy grid, or ``None``.
-        iteration: the iteration (0 = the teacher).
-        train_idx, test_idx: ``(m,)``, ``(t,)`` the run's view indices into the scene.
-        train: the run's :class:`senerf.config.TrainConfig` (its seed and steps rebuild the fields).
-        finished: the run's finished iterations, ascending.
-    """
-
-    folder: Path
-    scene: object
-    model: object
-    field: object
-    occupancy: object
-    iteration: int
-    train_idx: np.ndarray
-    test_idx: np.ndarray
-    train: object
-    finished: tuple
-
-
-def _views(metrics: dict, which: str, path: Path, n_images: int) -> np.ndarray:
-    """``metrics['<which>_views']`` (``which``: ``'train'`` or ``'test'``) as indices ``(m,)`` into the scene."""
-    idx = metrics.get(f"{which}_views")
-    if not (isinstance(idx, list) and idx and all(type(i) is int and 0 <= i < n_images for i in idx)):
-        raise InputError(f"expected a non-empty list of view indices below {n_images}", file=path,
-                         field=f"{which}_views")
-    return np.asarray(idx, dtype=np.int64)
-
-
-def load_fitted_run(folder, iteration: int | None = None, device: str = "cpu") -> FittedRun:
-    """Load a run folder's field after ``iteration`` (default: the last finished one).
-
-    Raises:
-        InputError: not a run folder of this senerf version (:func:`senerf.runfolder.read_run`), a bad
-            ``run.json`` / ``metrics.json`` value, no finished iteration (or not ``iteration``, naming
-            ``--iteration``), a missing or foreign checkpoint, a scene folder that no longer matches the run.
-
-    Warns:
-        UserWarning: the scene's files no longer hold what the fit read (``run.json``'s ``scene_files``).
-    """
-    from senerf.config import ModelConfig, TrainConfig
-    from senerf.data import changed_files, detect_format, load_scene, scene_file_digests, view_names
-
-    folder = Path(folder)
-    if not folder.is_dir():
-        raise InputError("not a folder", file=folder)
-    run_path, metrics_path = folder / RUN_FILE, folder / METRICS_FILE
-    run = read_run(folder)
-    metrics = read_metrics(folder)
-    done = finished_iterations(metrics)
-    if not done:
-        raise InputError("holds no finished iteration yet; let senerf-fit finish one (rerun its command to resume)",
-                         file=folder)
-    configs = {}
-    for key, config in (("model", ModelConfig), ("train", TrainConfig)):
-        try:
-            configs[key] = config(**run["settings"][key])
-        except InputError as exc:   # the config's own check, named in run.json
-            raise InputError(exc.problem, file=run_path, field=f"settings.{key}.{exc.field}") from None
-        except (KeyError, TypeError) as exc:   # missing, or holding a setting of another senerf version
-            raise InputError(f"missing or not of this senerf version ({exc})", file=run_path,
-                             field=f"settings.{key}") from None
-    settings, model, train = run["settings"], configs["model"], configs["train"]
-    scene_dir = str(run["scene_dir"])
-    kind = settings.get("scene_kind") if detect_format(scene_dir) == "colmap" else None   # only COLMAP's is chosen
-    scene = load_scene(scene_dir, downscale=settings.get("downscale"), kind=kind)
-    train_idx, test_idx = (_views(metrics, which, metrics_path, scene.n_images) for which in ("train", "test"))
-    recorded = run.get("scene_files") or {}
-    now = scene_file_digests(scene, [i for i, name in enumerate(view_names(scene, range(scene.n_images)))
-                                     if name in recorded])
-    lines = changed_files(recorded, {name: digest for name, digest in now.items() if name in recorded})
-    if lines:   # the cameras then may not be in the frame the field was fitted in
-        more = f" and {len(lines) - 1} more" if len(lines) > 1 else ""
-        warnings.warn(f"{run_path}: the scene's files changed since the fit ({lines[0]}{more}); its cameras and "
-                      "photos are read as they are now", stacklevel=2)
-    fitted = FittedRun(folder, scene, model, None, None, -1, train_idx, test_idx, train, tuple(done))
-    return with_iteration(fitted, done[-1] if iteration is None else int(iteration), device)
-
-
-def with_iteration(run: FittedRun, iteration: int, device: str = "cpu", flag: str = "--iteration") -> FittedRun:
-    """``run`` with the field of another finished ``iteration`` (the scene is not read again); an unfinished
-    one is an :class:`InputError` naming ``flag``, the option that asked for it."""
-    from senerf.train.checkpoint import load_field
-
-    if iteration not in run.finished:
-        raise InputError(f"iteration {iteration} is not finished in this run (finished: {list(run.finished)})",
-                         field=flag)
-    field, occupancy = load_field(checkpoint_path(run.folder, iteration), run.model, run.train.seed, run.train.steps,
-                                  device)
-    return dataclasses.replace(run, field=field, occupancy=occupancy, iteration=iteration)
 
 
 def path_cameras(run: FittedRun, path: str, frames: int, scale: float = 1.0, elevation: float | None = None):
@@ -383,7 +281,7 @@ def _run(args) -> int:
     if args.out is not None:   # before loading anything
         args.out = Path(os.path.abspath(args.out))   # `--out .` has a name then
         _check_out(args.out, args.overwrite)
-    run = load_fitted_run(args.run, args.iteration, device)
+    run = load_run(args.run, args.iteration, device)
     from senerf.fields.ckernel import warn_without_kernel
 
     warn_without_kernel(run.model, device)

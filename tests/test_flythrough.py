@@ -19,7 +19,7 @@ import pytest
 
 import senerf.flythrough as fly
 from senerf.errors import InputError
-from senerf.flythrough import load_fitted_run, main, path_cameras, render_frames, side_by_side
+from senerf.flythrough import load_run, main, path_cameras, render_frames, side_by_side
 from senerf.geometry import Intrinsics
 
 _K8 = Intrinsics(8.0, 8.0, 4.0, 4.0, 8, 8)
@@ -96,7 +96,7 @@ def test_the_test_path_reproduces_the_renders_senerf_fit_scored(runs, tmp_path, 
     record = json.loads((out / "path.json").read_text())
     assert record["iteration"] == k and record["path"] == "test" and len(record["c2w"]) == 3
     if which == "nerf":
-        assert load_fitted_run(run).field.band_weights.min() < 1.0
+        assert load_run(run).field.band_weights.min() < 1.0
 
 
 def test_iterations_differ_and_the_last_is_the_default(runs, tmp_path):
@@ -141,7 +141,7 @@ def test_the_default_orbit_writes_frames_gifs_and_the_poses(runs, tmp_path, caps
 def test_scale_and_elevation_shape_the_orbit(runs):
     from senerf.geometry import closest_point_to_axes, default_up, spherical_from_pose
 
-    run = load_fitted_run(runs.base)
+    run = load_run(runs.base)
     c2w, ks = path_cameras(run, "orbit", 4, scale=2.0, elevation=60.0)
     assert ks[0].size == (32, 32)
     inputs = run.scene.c2w[run.train_idx]
@@ -160,11 +160,11 @@ def test_the_occupancy_grid_of_the_checkpoint_is_used(runs, tmp_path):
         state["occupancy"]["mask"] = state["occupancy"]["mask"] & False
         state["occupancy"]["density_grid"] = state["occupancy"]["density_grid"] * 0.0
     _edit_checkpoint(run_dir / "checkpoints" / "iter_0_train.pt", empty_grid)
-    run = load_fitted_run(run_dir)
+    run = load_run(run_dir)
     c2w, ks = path_cameras(run, "test", 0)
     frames = render_frames(run, c2w[:1], ks[:1], progress=False)
     assert frames["acc"].max() == 0.0 and (frames["rgb"] == 255).all()   # the white background only
-    full = render_frames(load_fitted_run(runs.base), c2w[:1], ks[:1], progress=False)
+    full = render_frames(load_run(runs.base), c2w[:1], ks[:1], progress=False)
     assert full["acc"].max() > 0.5        # the same view with the fitted grid is not empty
 
 
@@ -335,7 +335,7 @@ def test_paths_a_scene_cannot_have_are_refused_naming_path():
 def test_forward_facing_runs_default_to_the_spiral_of_60_frames(runs, tmp_path, capsys, monkeypatch):
     import dataclasses
 
-    real = fly.load_fitted_run
+    real = fly.load_run
 
     def forward_facing(*a, **k):
         run = real(*a, **k)
@@ -345,7 +345,7 @@ def test_forward_facing_runs_default_to_the_spiral_of_60_frames(runs, tmp_path, 
     def stop(run, c2w, intrinsics, **k):
         rendered.append(len(c2w))
         raise KeyboardInterrupt
-    monkeypatch.setattr(fly, "load_fitted_run", forward_facing)
+    monkeypatch.setattr(fly, "load_run", forward_facing)
     monkeypatch.setattr(fly, "render_frames", stop)
     assert main([str(runs.base), "--out", str(tmp_path / "o"), "--quiet"]) == 130
     assert "spiral path: 60 frames at 16x16" in capsys.readouterr().out and rendered == [60]
