@@ -1,5 +1,5 @@
-"""Camera paths for fly-through renders, built from the input cameras alone: an orbit, a spiral.  Frames are
-evenly spaced and the last one does not repeat the first, so a path played in a loop has no doubled frame.
+"""Camera paths for fly-through renders: an orbit and a spiral built from the input cameras alone, and a path
+through saved keyframes.  Orbit and spiral frames are evenly spaced and the last one does not repeat the first, so a path played in a loop has no doubled frame.
 """
 
 from __future__ import annotations
@@ -10,7 +10,7 @@ from .poses import look_at, pose_list
 from .spherical import _spherical_angles, closest_point_to_axes, default_up, pose_from_spherical
 from .spherical import spherical_from_pose  # noqa: F401  (the docstrings' examples use it)
 
-__all__ = ["orbit_path", "spiral_path", "spiral_focus_depth"]
+__all__ = ["orbit_path", "spiral_path", "spiral_focus_depth", "keyframe_path"]
 
 
 def _count(n, fn: str) -> int:
@@ -139,3 +139,40 @@ def spiral_path(input_c2w, n: int, focus_depth: float, radii=None, rotations: fl
         raise ValueError("spiral_path: a frame reaches the focus point; use a larger focus_depth or smaller radii")
     poses = look_at(eyes, np.broadcast_to(target, eyes.shape), up=image_up)
     return poses.astype(arr.dtype, copy=False)
+
+
+def keyframe_path(key_c2w, n: int) -> np.ndarray:
+    """``n`` cameras through keyframes, from the first to the last, evenly spaced in keyframe index: rotations
+    are spherically interpolated (SLERP, the shorter arc) and positions linearly between neighbouring keyframes.
+
+    Args:
+        key_c2w: ``(k, 4, 4)`` or ``(k, 3, 4)`` camera-to-world keyframes, ``k >= 1`` (one keyframe: ``n`` copies).
+        n: number of frames, ``>= 1`` (one frame: the first keyframe).
+
+    Returns:
+        ``(n, 4, 4)`` camera-to-world, dtype of ``key_c2w``; frame 0 is keyframe 0 and frame ``n - 1`` keyframe
+        ``k - 1``.
+
+    Example:
+        >>> keys = np.stack([np.eye(4), np.eye(4)])
+        >>> keys[1, :2, :2] = [[0.0, -1.0], [1.0, 0.0]]   # a quarter turn about z
+        >>> keys[1, :3, 3] = (2.0, 0.0, 0.0)
+        >>> mid = keyframe_path(keys, 3)[1]
+        >>> np.round(mid[:3, 3], 6).tolist(), np.round(mid[:2, 0], 6).tolist()   # half way: an eighth of a turn
+        ([1.0, 0.0, 0.0], [0.707107, 0.707107])
+    """
+    from scipy.spatial.transform import Rotation, Slerp
+
+    keys = pose_list(key_c2w, "key_c2w")
+    count = _count(n, "keyframe_path")
+    a = keys.astype(np.float64)
+    s = np.linspace(0.0, len(a) - 1, count) if count > 1 else np.zeros(1)
+    out = np.tile(np.eye(4), (count, 1, 1))
+    if len(a) == 1:
+        out[:, :3, :] = a[0, :3, :]
+        return out.astype(keys.dtype, copy=False)
+    seg = np.minimum(np.floor(s).astype(np.int64), len(a) - 2)
+    frac = (s - seg)[:, None]
+    out[:, :3, 3] = (1.0 - frac) * a[seg, :3, 3] + frac * a[seg + 1, :3, 3]
+    out[:, :3, :3] = Slerp(np.arange(len(a)), Rotation.from_matrix(a[:, :3, :3]))(s).as_matrix()
+    return out.astype(keys.dtype, copy=False)

@@ -1,10 +1,11 @@
-"""Tests of senerf/geometry/paths.py: orbit and spiral camera paths."""
+"""Tests of senerf/geometry/paths.py: orbit, spiral and keyframe camera paths."""
 
 import numpy as np
 import pytest
 
 from senerf.geometry import (
     is_rigid,
+    keyframe_path,
     look_at,
     opencv_to_opengl,
     opengl_to_opencv,
@@ -206,3 +207,33 @@ def test_spiral_of_a_tiny_scene_is_the_unit_spiral_scaled():
     tiny = spiral_path(np.eye(4)[None], 4, focus_depth=1e-10, radii=(1e-11, 1e-11, 0.0), rotations=1.0)
     assert np.allclose(tiny[:, :3, :3], unit[:, :3, :3], atol=1e-12)
     assert np.allclose(tiny[:, :3, 3], 1e-10 * unit[:, :3, 3], rtol=1e-12, atol=1e-24)
+
+
+def _rot_z(deg: float) -> np.ndarray:
+    c, s = np.cos(np.radians(deg)), np.sin(np.radians(deg))
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+@pytest.mark.parametrize("dtype", DTYPES)
+def test_keyframe_path_turns_at_constant_rate_and_moves_linearly(dtype):
+    """Keyframes 0, 60 and 150 degrees about z: 7 frames turn by 20, then 30 degrees a frame (SLERP within a
+    segment is uniform), positions move in straight lines, every frame is rigid, frames 0 and 6 are the ends."""
+    keys = np.tile(np.eye(4), (3, 1, 1))
+    for i, (deg, pos) in enumerate([(0.0, (0, 0, 0)), (60.0, (3, 0, 0)), (150.0, (3, 6, 0))]):
+        keys[i, :3, :3], keys[i, :3, 3] = _rot_z(deg), pos
+    path = keyframe_path(keys.astype(dtype), 7)
+    assert path.dtype == dtype and path.shape == (7, 4, 4) and all(is_rigid(p) for p in path.astype(np.float64))
+    tol = 1e-5 if dtype == np.float32 else 1e-12
+    angles = np.degrees(np.arctan2(path[:, 1, 0], path[:, 0, 0]))
+    np.testing.assert_allclose(angles, [0, 20, 40, 60, 90, 120, 150], atol=10 * tol)
+    np.testing.assert_allclose(path[:, :3, 3], [[0, 0, 0], [1, 0, 0], [2, 0, 0], [3, 0, 0], [3, 2, 0], [3, 4, 0],
+                                                [3, 6, 0]], atol=10 * tol)
+
+
+def test_keyframe_path_of_one_keyframe_or_one_frame():
+    keys = np.tile(np.eye(4), (2, 1, 1))
+    keys[1, :3, 3] = (1.0, 2.0, 3.0)
+    np.testing.assert_array_equal(keyframe_path(keys[1:], 3), np.repeat(keys[1:], 3, axis=0))
+    np.testing.assert_array_equal(keyframe_path(keys, 1), keys[:1])
+    with pytest.raises(ValueError, match="n must be an integer >= 1"):
+        keyframe_path(keys, 0)
