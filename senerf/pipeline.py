@@ -313,7 +313,9 @@ def fit(scene_dir, out=None, *, protocol: str | None = None, views=None, n_views
     metrics = run_selftraining(scene, split.train_idx, split.test_idx, model_cfg, train_cfg, st_cfg, out,
                                command=command or [], config=config, progress=progress, echo=echo)
     from senerf.report import write_summary
+    from senerf.train import phase_breakdown
 
+    echo(f"fit: time {phase_breakdown(metrics)}")
     write_summary(metrics, scene, split.train_idx, split.test_idx, model_cfg, out, echo)
     sys.stdout.flush()
     return FitResult(out, metrics)

@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 import senerf
+from senerf.train import phase_breakdown
 from senerf.errors import InputError
 
 SMALL = dict(iterations=0, train=dict(steps=24, batch_rays=128), model=dict(n_samples=12, resolution=8),
@@ -29,17 +30,18 @@ def _files(folder):
 
 
 def test_a_fit_writes_the_documented_run_folder_and_the_same_call_resumes_it(tiny_scene, tmp_path):
-    out = tmp_path / "run"
-    result = senerf.fit(tiny_scene, out, protocol="all", **SMALL)
+    out, lines = tmp_path / "run", []
+    result = senerf.fit(tiny_scene, out, protocol="all", **{**SMALL, "echo": lines.append})
     metrics = json.loads((out / "metrics.json").read_text())
+    assert [line for line in lines if line.startswith("fit: time ")] == [f"fit: time {phase_breakdown(metrics)}"]
     assert result.metrics == metrics and result.psnr == [metrics["iterations"][0]["psnr"]]
     assert set(metrics) == {"senerf_version", "command", "config", "scene", "train_views", "test_views",
                             "train_images", "test_images", "resolution", "iterations", "seconds_total"}
     assert metrics["train_images"] == [f"train/r_{k}.png" for k in range(5)]
     assert metrics["test_images"] == ["test/r_0.png", "test/r_1.png"] and metrics["test_views"] == [5, 6]
     (row,) = metrics["iterations"]
-    assert set(row) == {"iteration", "psnr", "ssim", "lpips", "avg", "reliable_fraction", "seconds", "per_view",
-                        "host"}
+    assert set(row) == {"iteration", "psnr", "ssim", "lpips", "avg", "reliable_fraction", "seconds", "phases",
+                        "train_samples_per_s", "per_view", "host"}
     assert row["lpips"] == row["avg"] == "unavailable" and row["reliable_fraction"] is None
     assert row["psnr"] == pytest.approx(np.mean(row["per_view"]["psnr"]))
     run = json.loads((out / "run.json").read_text())

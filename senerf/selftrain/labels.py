@@ -14,7 +14,7 @@ import torch
 from .. import geometry
 from ..config import SelfTrainConfig
 from ..errors import InputError
-from ..train import camera_rays, eval_images, render_views, write_png
+from ..train import camera_rays, eval_images, render_views, timed, write_png
 from .distill import PseudoRays, prior_weights, unified_prior_weights
 from .features import features_on_device, known_view_features
 from .reliability import gt_reliable_mask, mask_quality, resolve_threshold, threshold_weights, view_similarity
@@ -74,7 +74,7 @@ known_images = eval_images
 def estimate_reliability(teacher, occupancy, model, scene, train_idx, pseudo_c2w: np.ndarray, extractor,
                          cfg: SelfTrainConfig, alpha: float, known_features=None, device=None,
                          renders: tuple[dict, dict] | None = None, pseudo_intrinsics=None,
-                         progress: bool = False) -> PseudoLabels:
+                         progress: bool = False, phases: dict | None = None) -> PseudoLabels:
     """Render ``pseudo_c2w (P, 4, 4)`` with the teacher and estimate every pixel's reliability.
 
     Each render's features are compared with those of the *real* known images where its pixels land
@@ -95,6 +95,8 @@ def estimate_reliability(teacher, occupancy, model, scene, train_idx, pseudo_c2w
         pseudo_intrinsics: the pseudo cameras' ``Intrinsics`` (one, or a sequence of P); default image 0's.
             The known views always use their own (``scene.intrinsics_all``).
         progress: a tqdm bar over the pseudo views.
+        phases: seconds spent are added to its ``pseudo_render``, ``features`` and ``reliability``
+            (:func:`senerf.train.timed`).
     Returns:
         :class:`PseudoLabels`.
     """
@@ -106,13 +108,15 @@ def estimate_reliability(teacher, occupancy, model, scene, train_idx, pseudo_c2w
     pseudo_k = (intr,) * n if isinstance(intr, geometry.Intrinsics) else tuple(intr)
     if renders is not None and (renders[0]["acc"].shape[0] != train_idx.size or renders[1]["acc"].shape[0] != n):
         raise ValueError("renders do not match the known / pseudo cameras")
-    known = (renders[0] if renders is not None else
-             render_views(teacher, model, known_intr, known_c2w, occupancy=occupancy, device=device))
+    with timed(phases, "pseudo_render"):
+        known = (renders[0] if renders is not None else
+                 render_views(teacher, model, known_intr, known_c2w, occupancy=occupancy, device=device))
     # an unbounded scene has content in every pixel: no background to leave out and no empty space to label
     opacity, empty_opacity = (0.0, 0.0) if model.contract else (cfg.opacity_threshold, cfg.empty_opacity)
     known_z = np.where(known["acc"] >= opacity, known["z_depth"], np.inf)   # occlusion buffers
     if known_features is None:
-        known_features = known_view_features(extractor, known_images(scene, train_idx, model))
+        with timed(phases, "features"):
+            known_features = known_view_features(extractor, known_images(scene, train_idx, model))
     extract = extractor.device_features if features_on_device(extractor) else extractor
     h, w = pseudo_k[0].size if n else (0, 0)
     views = dict(rgb=np.empty((n, h, w, 3), np.float32), z_depth=np.empty((n, h, w), np.float32),
@@ -124,20 +128,24 @@ def estimate_reliability(teacher, occupancy, model, scene, train_idx, pseudo_c2w
 
         todo = tqdm(todo, desc="labelling", unit="view", dynamic_ncols=True)
     for i in todo:
-        if renders is None:
-            view = {name: a[0] for name, a in render_views(teacher, model, pseudo_k[i], pseudo_c2w[i],
-                                                           occupancy=occupancy, device=device).items()}
-        else:
-            view = {name: renders[1][name][i] for name in ("rgb", "z_depth", "acc")}
-        feats = extract(np.clip(view["rgb"][None], 0.0, 1.0))[0]
-        res = view_similarity(feats, view["z_depth"], view["acc"], pseudo_k[i], pseudo_c2w[i],
-                              known_features, known_z, known_intr, known_c2w,
-                              opacity_threshold=opacity, rel_tol=cfg.occlusion_rel_tol,
-                              foreground_only=True)
+        with timed(phases, "pseudo_render"):
+            if renders is None:
+                view = {name: a[0] for name, a in render_views(teacher, model, pseudo_k[i], pseudo_c2w[i],
+                                                               occupancy=occupancy, device=device).items()}
+            else:
+                view = {name: renders[1][name][i] for name in ("rgb", "z_depth", "acc")}
+        with timed(phases, "features"):
+            feats = extract(np.clip(view["rgb"][None], 0.0, 1.0))[0]
+        with timed(phases, "reliability"):
+            res = view_similarity(feats, view["z_depth"], view["acc"], pseudo_k[i], pseudo_c2w[i],
+                                  known_features, known_z, known_intr, known_c2w,
+                                  opacity_threshold=opacity, rel_tol=cfg.occlusion_rel_tol,
+                                  foreground_only=True)
         view.update(similarity=res.similarity, foreground=res.foreground)
         for name, array in views.items():
             array[i] = view[name]
-    return _labels_from_views(views, pseudo_c2w, intr, cfg, alpha, empty_opacity)
+    with timed(phases, "reliability"):
+        return _labels_from_views(views, pseudo_c2w, intr, cfg, alpha, empty_opacity)
 
 
 def _labels_from_views(views: dict, pseudo_c2w: np.ndarray, intr, cfg: SelfTrainConfig,

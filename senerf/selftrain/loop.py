@@ -18,7 +18,8 @@ import torch
 from ..atomic import atomic_write_text
 from ..config import ModelConfig, SelfTrainConfig, TrainConfig
 from ..runfolder import METRICS_FILE, checkpoint_path, read_metrics
-from ..train import RayBatchSource, build_field, evaluate, iteration_row, load_field, metrics_document, train_field
+from ..train import (RayBatchSource, build_field, evaluate, iteration_row, load_field, metrics_document, timed,
+                     train_field)
 from .distill import DistillationLoss
 from .features import VGG19Features, features_device, known_view_features
 from .labels import (PseudoLabels, estimate_reliability, known_images, labels_text, pseudo_rays, sample_pseudo_cameras,
@@ -37,19 +38,20 @@ class _Labelling:
         self.device, self.progress, self.echo = device, progress, echo
         self.extractor = self.known_features = None
 
-    def __call__(self, teacher, occupancy, k: int) -> PseudoLabels:
+    def __call__(self, teacher, occupancy, k: int, phases: dict) -> PseudoLabels:
         cfg, scene, train_idx = self.cfg, self.scene, self.train_idx
         n = cfg.n_pseudo_per_input * train_idx.size
         self.echo(f"selftrain: iteration {k}: labelling {n} pseudo views (teacher renders, vgg19 features, "
                   f"reprojection into {train_idx.size} known views)")
         if self.extractor is None:
-            self.extractor = VGG19Features(normalize_layers=cfg.normalize_layers,
-                                           device=features_device(scene, train_idx, self.device, self.echo))
-            self.known_features = known_view_features(self.extractor, known_images(scene, train_idx, self.model))
+            with timed(phases, "features"):
+                self.extractor = VGG19Features(normalize_layers=cfg.normalize_layers,
+                                               device=features_device(scene, train_idx, self.device, self.echo))
+                self.known_features = known_view_features(self.extractor, known_images(scene, train_idx, self.model))
         c2w, intrinsics = sample_pseudo_cameras(scene, train_idx, cfg, k)
         return estimate_reliability(teacher, occupancy, self.model, scene, train_idx, c2w, self.extractor, cfg,
                                     cfg.alpha(k), known_features=self.known_features, device=self.device,
-                                    pseudo_intrinsics=intrinsics, progress=self.progress)
+                                    pseudo_intrinsics=intrinsics, progress=self.progress, phases=phases)
 
 
 def run_selftraining(scene, train_idx, test_idx, model: ModelConfig, train_cfg: TrainConfig, cfg: SelfTrainConfig,
@@ -92,8 +94,9 @@ def run_selftraining(scene, train_idx, test_idx, model: ModelConfig, train_cfg: 
     for k in range(done, cfg.iterations + 1):
         t0 = time.perf_counter()
         labels = distillation = None
+        phases = {}
         if k > 0:
-            labels = label(teacher, occupancy, k)
+            labels = label(teacher, occupancy, k, phases)
             write_pseudo_pngs(out / f"iter_{k}" / "pseudo", labels)
             echo(f"selftrain: iteration {k}: {labels.c2w.shape[0]} pseudo views within {cfg.pseudo_range(k):g} deg, "
                  f"{labels_text(labels, cfg)}")
@@ -104,11 +107,14 @@ def run_selftraining(scene, train_idx, test_idx, model: ModelConfig, train_cfg: 
         student = build_field(model, seed=train_cfg.seed, steps=train_cfg.steps)
         result = train_field(student, rays, train_cfg, extra_loss=distillation, checkpoint=checkpoint_path(out, k),
                              progress=progress)
-        ev = evaluate(result.field, scene, test_idx, out / f"iter_{k}" / "test", model, occupancy=result.occupancy,
-                      device=device, progress=progress)
+        phases["train"] = result.seconds + result.seconds_before
+        with timed(phases, "evaluation"):
+            ev = evaluate(result.field, scene, test_idx, out / f"iter_{k}" / "test", model,
+                          occupancy=result.occupancy, device=device, progress=progress)
         reliable = None if labels is None or not labels.foreground.any() else labels.reliable_fraction
         seconds = time.perf_counter() - t0 + result.seconds_before
-        metrics["iterations"].append(iteration_row(k, ev, reliable, seconds, device))
+        samples = result.steps * train_cfg.batch_rays * model.n_samples
+        metrics["iterations"].append(iteration_row(k, ev, reliable, seconds, device, phases, samples))
         metrics["seconds_total"] = float(sum(row["seconds"] for row in metrics["iterations"]))
         atomic_write_text(out / METRICS_FILE, json.dumps(metrics, indent=1))
         echo(f"selftrain: iteration {k}: test PSNR {ev['psnr']:.2f} dB, SSIM {ev['ssim']:.3f}")

@@ -9,7 +9,7 @@ from .metrics import LPIPS_UNAVAILABLE, mse, psnr, ssim
 from .model import (NDC_AABB, NERF_FREQS, NERF_HIDDEN, NERF_LAYERS, build_field, camera_aabb, choose_model,
                     nerf_description)
 from .rays import RayBatchSource, camera_rays, per_view_intrinsics, ray_aabb_bounds, ray_dist_to_z_depth
-from .record import host_record, iteration_row, metrics_document
+from .record import PHASES, host_record, iteration_row, metrics_document, phase_breakdown, timed
 
 __all__ = [
     "choose_model", "build_field", "camera_aabb", "nerf_description", "NDC_AABB", "NERF_FREQS", "NERF_HIDDEN",
@@ -19,5 +19,5 @@ __all__ = [
     "evaluate", "eval_images", "render_views", "depth_to_color", "write_png",
     "psnr", "ssim", "mse", "LPIPS_UNAVAILABLE",
     "save_checkpoint", "load_checkpoint", "load_field",
-    "metrics_document", "iteration_row", "host_record",
+    "metrics_document", "iteration_row", "host_record", "timed", "PHASES", "phase_breakdown",
 ]

@@ -4,13 +4,20 @@
 
 from __future__ import annotations
 
+import time
+from contextlib import contextmanager
+
 import numpy as np
 
 from senerf import __version__
 from senerf.data import view_names
 from senerf.memory import cpu_model
 
-__all__ = ["metrics_document", "iteration_row", "host_record"]
+__all__ = ["metrics_document", "iteration_row", "host_record", "timed", "PHASES", "phase_breakdown"]
+
+#: The phases a row's ``phases`` times, in the order of an iteration: training, the teacher's renders of the pseudo
+#: and known views, VGG-19 features, reprojection and reliability, and the test views' evaluation.
+PHASES = ("train", "pseudo_render", "features", "reliability", "evaluation")
 
 
 def metrics_document(scene, train_idx, test_idx, command, config: dict) -> dict:
@@ -44,10 +51,42 @@ def host_record(device) -> dict:
     return host
 
 
-def iteration_row(iteration: int, ev: dict, reliable_fraction: float | None, seconds: float, device="cpu") -> dict:
+@contextmanager
+def timed(phases: dict | None, name: str):
+    """Add the wall time of the ``with`` block to ``phases[name]`` (seconds); nothing when ``phases`` is None.
+    Times are taken at the phase boundaries: on a GPU, work still queued is counted in the phase that waits for it."""
+    t0 = time.perf_counter()
+    try:
+        yield
+    finally:
+        if phases is not None:
+            phases[name] = phases.get(name, 0.0) + time.perf_counter() - t0
+
+
+def iteration_row(iteration: int, ev: dict, reliable_fraction: float | None, seconds: float, device="cpu",
+                  phases: dict | None = None, train_samples: int = 0) -> dict:
     """One row of ``metrics['iterations']`` from :func:`senerf.train.evaluate`'s result ``ev``
     (``reliable_fraction`` None for the teacher, or when the pseudo views held no foreground), with the
-    :func:`host_record` of ``device``, the host that finished the iteration."""
+    :func:`host_record` of ``device``, the host that finished the iteration, the seconds of each of
+    :data:`PHASES` (``phases``) and the training's steps and samples per second (``train_samples``: the steps'
+    ray samples, ``steps x batch_rays x n_samples``, before empty-space skipping)."""
+    phases = {name: float((phases or {}).get(name, 0.0)) for name in PHASES}
+    per_s = train_samples / phases["train"] if phases["train"] > 0 else 0.0
     return dict(iteration=int(iteration), psnr=ev["psnr"], ssim=ev["ssim"], lpips=ev["lpips"], avg=ev["avg"],
-                reliable_fraction=reliable_fraction, seconds=seconds, per_view=ev["per_view"],
-                host=host_record(device))
+                reliable_fraction=reliable_fraction, seconds=seconds, phases=phases, train_samples_per_s=per_s,
+                per_view=ev["per_view"], host=host_record(device))
+
+
+def phase_breakdown(metrics: dict) -> str:
+    """One line: the run's time per phase over its iterations and the training's samples per second, e.g.
+    ``12.8 min: train 9.1 min (0.18 M samples/s), pseudo_render 1.2 min, ...``."""
+    rows = metrics["iterations"]
+
+    def text(s: float) -> str:
+        return f"{s / 60:.1f} min" if s >= 90 else f"{s:.0f} s"
+
+    totals = {name: sum(row.get("phases", {}).get(name, 0.0) for row in rows) for name in PHASES}
+    samples = sum(row.get("train_samples_per_s", 0.0) * row.get("phases", {}).get("train", 0.0) for row in rows)
+    rate = f" ({samples / totals['train'] / 1e6:.2f} M samples/s)" if totals["train"] > 0 else ""
+    parts = [f"{name} {text(s)}{rate if name == 'train' else ''}" for name, s in totals.items() if s > 0]
+    return f"{text(metrics.get('seconds_total', 0.0))}: " + ", ".join(parts)

@@ -15,6 +15,7 @@ import pytest
 import senerf.selftrain.loop as loop_mod
 from senerf.config import SelfTrainConfig, TrainConfig
 from senerf.runfolder import checkpoint_path
+from senerf.train import PHASES
 
 QUIET = dict(progress=False, echo=lambda s: None)
 RECORDED = dict(command=["senerf-fit", "scene"], config={"note": "recorded as given"})   # into metrics.json
@@ -83,6 +84,12 @@ def test_a_tiny_run_writes_what_the_design_promises(setup, reference):
     for r in rows:
         assert np.isfinite(r["psnr"]) and r["per_view"]["psnr"] == [r["psnr"]] and len(r["per_view"]["ssim"]) == 1
         assert r["host"]["device"] == "cpu" and r["seconds"] > 0
+        assert list(r["phases"]) == list(PHASES) and min(r["phases"].values()) >= 0.0
+        assert sum(r["phases"].values()) <= r["seconds"] and r["phases"]["train"] > 0 and r["phases"]["evaluation"] > 0
+        samples = tcfg.steps * tcfg.batch_rays * model.n_samples
+        assert r["train_samples_per_s"] == pytest.approx(samples / r["phases"]["train"])
+    labelling = ("pseudo_render", "features", "reliability")   # the teacher labels nothing; the student's pseudo views
+    assert all(rows[0]["phases"][p] == 0.0 for p in labelling) and all(rows[1]["phases"][p] > 0 for p in labelling)
     assert doc["seconds_total"] == pytest.approx(sum(r["seconds"] for r in rows))
     # iteration 0 trains on the photos alone, iteration 1 with the distillation loss
     assert calls[0] == (None, 0) and isinstance(calls[1][0], DistillationLoss) and calls[1][1] == 0
@@ -100,7 +107,7 @@ def test_a_tiny_run_writes_what_the_design_promises(setup, reference):
 
 
 def _files(folder: Path) -> dict:
-    """Every file under ``folder`` by relative name: the renders' bytes, metrics.json without its timings, and the
+    """Every file under ``folder`` by relative name: the renders' bytes, metrics.json without its timings (seconds, phases, samples/s), and the
     checkpoints' step, field and occupancy grid (they also record the training's seconds)."""
     from senerf.train import load_checkpoint
 
@@ -116,7 +123,7 @@ def _files(folder: Path) -> dict:
         elif path.is_file():
             files[name] = json.loads(path.read_text())
             for row in files[name]["iterations"]:
-                del row["seconds"]
+                del row["seconds"], row["phases"], row["train_samples_per_s"]
             del files[name]["seconds_total"]
     return files
 

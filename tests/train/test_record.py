@@ -13,7 +13,7 @@ from senerf import __version__
 from senerf.data import Scene
 from senerf.geometry import Intrinsics
 from senerf.memory import cpu_model
-from senerf.train import host_record, iteration_row, metrics_document
+from senerf.train import PHASES, host_record, iteration_row, metrics_document, phase_breakdown, timed
 
 EV = {"psnr": 20.0, "ssim": 0.5, "lpips": "unavailable", "avg": "unavailable", "per_view": {"psnr": [20.0],
                                                                                             "ssim": [0.5]}}
@@ -60,3 +60,30 @@ def test_each_row_records_the_host_that_finished_it(monkeypatch):
     monkeypatch.setattr(torch.cuda, "get_device_name", lambda device=None: f"Fake GPU {torch.device(device)}")
     assert host_record("cuda:1")["device"] == "Fake GPU cuda:1" and "kernel" not in host_record("cuda:1")
     assert iteration_row(1, EV, None, 1.0, "cuda:1")["host"]["device"] == "Fake GPU cuda:1"
+
+
+def test_timed_adds_each_blocks_seconds_even_when_it_raises(monkeypatch):
+    clock = iter([10.0, 12.5, 20.0, 21.0, 30.0, 31.0])
+    monkeypatch.setattr("senerf.train.record.time.perf_counter", lambda: next(clock))
+    phases = {}
+    with timed(phases, "features"):
+        pass
+    try:
+        with timed(phases, "features"):
+            raise RuntimeError
+    except RuntimeError:
+        pass
+    assert phases == {"features": 3.5}
+    with timed(None, "features"):   # no record asked for
+        pass
+
+
+def test_a_row_times_every_phase_and_the_breakdown_sums_them_over_iterations():
+    rows = [iteration_row(0, EV, None, 130.0, phases=dict(train=120.0, evaluation=5.0), train_samples=60e6),
+            iteration_row(1, EV, 0.5, 70.0, phases=dict(train=40.0, pseudo_render=10.0, features=6.0, reliability=4.0,
+                                                          evaluation=5.0), train_samples=20e6)]
+    assert list(rows[0]["phases"]) == list(PHASES) and rows[0]["phases"]["features"] == 0.0
+    assert rows[0]["train_samples_per_s"] == 0.5e6 and rows[1]["train_samples_per_s"] == 0.5e6
+    line = phase_breakdown(dict(seconds_total=200.0, iterations=rows))
+    assert line == ("3.3 min: train 2.7 min (0.50 M samples/s), pseudo_render 10 s, features 6 s, reliability 4 s, "
+                    "evaluation 10 s")
