@@ -204,7 +204,7 @@ def write_mp4(path: Path, frames: np.ndarray, fps: float) -> None:
 
     import imageio_ffmpeg
 
-    n, h, w, _ = frames.shape
+    h, w = frames.shape[1:3]
     if h % 2 or w % 2:
         frames = np.pad(frames, ((0, 0), (0, h % 2), (0, w % 2), (0, 0)), mode="edge")
     cmd = [imageio_ffmpeg.get_ffmpeg_exe(), "-v", "error", "-y", "-f", "rawvideo", "-pix_fmt", "rgb24",
