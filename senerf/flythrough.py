@@ -1,6 +1,6 @@
-"""``senerf-render``: render a finished ``senerf-fit`` run along a camera path and write PNG frames and GIFs
-(the output files are listed in :func:`build_parser`'s epilog; the exit statuses are
-:func:`senerf.cliargs.run_command`'s).
+"""``senerf-render``: render a finished ``senerf-fit`` run along a camera path (an orbit, a spiral, the test views or
+a saved camera path file) and write H.264 mp4 videos, GIFs or PNG frames (the output files are listed in
+:func:`build_parser`'s epilog; the exit statuses are :func:`senerf.cliargs.run_command`'s).
 
 Convention: poses are OpenCV camera-to-world in the scene's world frame.  The output is written into a hidden
 sibling of ``--out``, ``.<name>.partial``, and renamed into place once whole, so ``--out`` holds a whole output or
@@ -26,14 +26,18 @@ from senerf.errors import InputError
 from senerf.memory import physical_memory_bytes
 from senerf.fitted import FittedRun, load_run, with_iteration
 
-__all__ = ["path_cameras", "render_frames", "side_by_side",
-           "write_output", "main", "console", "PATHS"]
+__all__ = ["path_cameras", "render_frames", "side_by_side", "write_mp4",
+           "write_output", "main", "console", "PATHS", "FORMATS"]
 
 PROG = "senerf-render"
 #: The camera paths ``senerf-render`` draws.
 PATHS = ("orbit", "spiral", "test")
+#: The output formats of ``senerf-render --format`` (the first is the default).
+FORMATS = ("mp4", "gif", "png")
 #: Frames of an orbit or spiral when ``--frames`` is not given.
 FRAMES_DEFAULT = 60
+#: Frame rate when neither ``--fps`` nor a camera path file gives one.
+FPS_DEFAULT = 20.0
 _RECORD = "path.json"
 
 
@@ -187,14 +191,42 @@ def _check_out(out: Path, overwrite: bool) -> None:
                          "choose another --out", file=out)
 
 
+def write_mp4(path: Path, frames: np.ndarray, fps: float) -> None:
+    """Write ``frames (n, H, W, 3)`` uint8 as an H.264 (libx264) yuv420p mp4, the video every player and browser
+    plays, through the ffmpeg that imageio-ffmpeg's wheel bundles.  yuv420p needs an even width and height: an odd
+    one gets its last row or column repeated (padding loses no rendered pixel, as cropping would, and resamples
+    none, as scaling would).  Constant quality CRF 18 (visually lossless for x264).
+
+    Raises:
+        OSError: ffmpeg failed (its last line of errors), so no broken file passes for a whole one.
+    """
+    import subprocess
+
+    import imageio_ffmpeg
+
+    h, w = frames.shape[1:3]
+    if h % 2 or w % 2:
+        frames = np.pad(frames, ((0, 0), (0, h % 2), (0, w % 2), (0, 0)), mode="edge")
+    cmd = [imageio_ffmpeg.get_ffmpeg_exe(), "-v", "error", "-y", "-f", "rawvideo", "-pix_fmt", "rgb24",
+           "-s", f"{w + w % 2}x{h + h % 2}", "-r", repr(float(fps)), "-i", "-", "-an", "-c:v", "libx264",
+           "-pix_fmt", "yuv420p", "-crf", "18", "-movflags", "+faststart", str(path)]
+    done = subprocess.run(cmd, input=memoryview(np.ascontiguousarray(frames).reshape(-1)), capture_output=True)
+    if done.returncode != 0:   # (subprocess.run kills ffmpeg on an interrupt)
+        lines = done.stderr.decode(errors="replace").strip().splitlines() or [f"exit status {done.returncode}"]
+        raise OSError(f"ffmpeg: {lines[-1]}")
+
+
 def write_output(out: Path, frames: dict, record: dict, fps: float, overwrite: bool = False,
-                 compare: np.ndarray | None = None) -> Path:
-    """Write the frames, the GIFs (``compare.gif`` of ``compare (n, H', W', 3)`` uint8 when given) and ``path.json``
-    (``record``) into ``out``, whole or not at all (module Convention).  With ``overwrite`` an earlier output there
-    is first moved into the partial folder (back, if the new one cannot take its place), and goes with it.
+                 compare: np.ndarray | None = None, fmt: str = "mp4") -> Path:
+    """Write the frames in ``fmt`` (``rgb`` and ``depth``, and ``compare`` when given: ``rgb.mp4``... for mp4,
+    ``rgb.gif``... for gif, ``rgb_000.png``... for png) and ``path.json`` (``record``) into ``out``, whole or not at
+    all (module Convention).  With ``overwrite`` an earlier output there is first moved into the partial folder
+    (back, if the new one cannot take its place), and goes with it.
 
     Args:
         frames: ``rgb`` and ``depth`` ``(n, H, W, 3)`` uint8 (:func:`render_frames`).
+        compare: ``(n, H', W', 3)`` uint8 (:func:`side_by_side`), or ``None``.
+        fps: the frame rate of the videos and GIFs.
 
     Raises:
         InputError: ``out`` is taken, or a write or rename failed (a full disk, a mount point), naming ``out``.
@@ -208,12 +240,15 @@ def write_output(out: Path, frames: dict, record: dict, fps: float, overwrite: b
     new, old = _partial(out) / "new", _partial(out) / "old"
     try:
         new.mkdir(parents=True)
-        for i, (rgb, depth) in enumerate(zip(frames["rgb"], frames["depth"])):
-            write_png(new / f"rgb_{i:03d}.png", rgb)
-            write_png(new / f"depth_{i:03d}.png", depth)
-        gifs = dict(rgb=frames["rgb"], depth=frames["depth"], **({} if compare is None else dict(compare=compare)))
-        for name, stack in gifs.items():
-            iio.imwrite(new / f"{name}.gif", stack, extension=".gif", duration=1000.0 / fps, loop=0)
+        stacks = dict(rgb=frames["rgb"], depth=frames["depth"], **({} if compare is None else dict(compare=compare)))
+        for name, stack in stacks.items():
+            if fmt == "png":
+                for i, image in enumerate(stack):
+                    write_png(new / f"{name}_{i:03d}.png", image)
+            elif fmt == "gif":
+                iio.imwrite(new / f"{name}.gif", stack, extension=".gif", duration=1000.0 / fps, loop=0)
+            else:
+                write_mp4(new / f"{name}.mp4", stack, fps)
         (new / _RECORD).write_text(json.dumps(record, indent=1))
         if os.path.lexists(out):
             out.rename(old)
@@ -233,7 +268,7 @@ def write_output(out: Path, frames: dict, record: dict, fps: float, overwrite: b
 
 def _check_memory(intrinsics, renders: int) -> None:
     """Refuse a path whose frames would not fit in this machine's memory: ~32 bytes a pixel (the float renders and
-    the 8-bit frames are all held until the GIFs are written), ``renders`` times (2 with ``--compare``)."""
+    the 8-bit frames are all held until the files are written), ``renders`` times (2 with ``--compare``)."""
     need, have = 32.0 * renders * sum(k.width * k.height for k in intrinsics), physical_memory_bytes()
     if have is not None and need > 0.8 * have:   # (None: not a POSIX system, no check)
         k, twice = intrinsics[0], " twice (--compare)" if renders == 2 else ""
@@ -245,19 +280,25 @@ def _check_memory(intrinsics, renders: int) -> None:
 def build_parser() -> argparse.ArgumentParser:
     """The ``senerf-render`` argument parser (errors raise :class:`InputError`)."""
     p = OneLineParser(prog=PROG, description="Render a finished senerf-fit run along a camera path.",
-                      epilog="Writes into --out (default RUN/render/<path>_iter<K>): rgb_XXX.png, depth_XXX.png, "
-                             "rgb.gif, depth.gif (with --compare also compare.gif) and path.json (poses: OpenCV "
-                             "camera-to-world, the scene's world frame). Exit status: 0 done, 2 bad input, 130 "
+                      epilog="Writes into --out (default RUN/render/<path>_iter<K>): with --format mp4 rgb.mp4 and "
+                             "depth.mp4 (H.264, yuv420p; an odd width or height gets its last column or row "
+                             "repeated), with gif rgb.gif and depth.gif, with png rgb_XXX.png and depth_XXX.png (with "
+                             "--compare also compare.mp4, .gif or _XXX.png), and always path.json (the frames' poses: "
+                             "OpenCV camera-to-world, the scene's world frame). Exit status: 0 done, 2 bad input, 130 "
                              "interrupted, 1 internal error.")
     p.add_argument("run", type=Path, help="a senerf-fit output folder (its --out)")
-    p.add_argument("--path", choices=PATHS, default=None,
-                   help="orbit (default for object and unbounded scenes), spiral (default for forward-facing scenes) or test "
-                        "(the run's test views)")
+    p.add_argument("--path", default=None, metavar="{orbit,spiral,test} or FILE",
+                   help="orbit (default for object and unbounded scenes), spiral (default for forward-facing scenes), "
+                        "test (the run's test views) or a camera path file to replay (senerf-view's keyframes or "
+                        "nerfstudio's camera_path.json; rendered at its image size times --scale)")
     p.add_argument("--frames", type=int_flag("--frames", maximum=10000), default=None,
-                   help=f"frames of an orbit or spiral (default {FRAMES_DEFAULT})")
-    p.add_argument("--fps", type=float_flag("--fps", minimum=0.01, maximum=50.0), default=20.0,
-                   help="GIF frame rate, 0.01 to 50 (GIF delays are whole hundredths of a second, at most 655 s; "
-                        "default 20)")
+                   help=f"frames of an orbit or spiral (default {FRAMES_DEFAULT}) or of a camera path file (default: "
+                        "the file's)")
+    p.add_argument("--format", choices=FORMATS, default=FORMATS[0],
+                   help="mp4 (default: rgb.mp4 and depth.mp4), gif or png (the frames)")
+    p.add_argument("--fps", type=float_flag("--fps", minimum=0.01, maximum=240.0), default=None,
+                   help="frame rate, 0.01 to 240, of a GIF at most 50 (its delays are whole hundredths of a second, "
+                        "at most 655 s; default: a camera path file's, else 20)")
     p.add_argument("--iteration", type=int_flag("--iteration", allow_zero=True), default=None,
                    help="which finished iteration's field (default: the last; 0 = the teacher)")
     p.add_argument("--scale", type=float_flag("--scale", positive=True, maximum=64.0), default=1.0,
@@ -265,7 +306,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--elevation", type=float_flag("--elevation", -89.0, maximum=89.0), default=None, metavar="DEG",
                    help="orbit elevation, -89 to 89 (default: the input views' mean)")
     p.add_argument("--compare", action="store_true",
-                   help="also write compare.gif: the teacher (iteration 0) beside the rendered iteration")
+                   help="also write compare.mp4 (.gif, _XXX.png): the teacher (iteration 0) beside the rendered "
+                        "iteration")
     p.add_argument("--out", type=Path, help="output folder (default RUN/render/<path>_iter<K>)")
     p.add_argument("--overwrite", action="store_true", help="replace an earlier senerf-render output in --out")
     p.add_argument("--device", default="cpu", help="cpu, cuda or cuda:N")
@@ -281,6 +323,18 @@ def _run(args) -> int:
     if args.out is not None:   # before loading anything
         args.out = Path(os.path.abspath(args.out))   # `--out .` has a name then
         _check_out(args.out, args.overwrite)
+    replay = None
+    if args.path is not None and args.path not in PATHS:   # a camera path file, read before the run is loaded
+        from senerf.camerapath import read_camera_path
+
+        if not os.path.exists(args.path):
+            raise InputError(f"{args.path!r} is neither {', '.join(PATHS)} nor a camera path file (not found)",
+                             field="--path")
+        replay = read_camera_path(args.path, frames=args.frames)
+    fps = args.fps or (replay.fps if replay else FPS_DEFAULT)
+    if args.format == "gif" and fps > 50.0:
+        whose = "" if args.fps else " (the camera path file's)"
+        raise InputError(f"a GIF plays at most 50 frames a second, got {fps:g}{whose}; use --format mp4", field="--fps")
     run = load_run(args.run, args.iteration, device)
     from senerf.fields.ckernel import warn_without_kernel
 
@@ -288,13 +342,18 @@ def _run(args) -> int:
     path = args.path or ("spiral" if run.scene.kind == "forward_facing" else "orbit")
     if args.elevation is not None and path != "orbit":
         raise InputError("applies to --path orbit only", field="--elevation")
+    name = Path(path).stem if replay else path
     if args.frames is not None and path == "test":
         raise InputError("the test path has one frame per test view; leave --frames out", field="--frames")
     out = args.out
     if out is None:
-        out = Path(os.path.abspath(run.folder)) / "render" / f"{path}_iter{run.iteration}"
+        out = Path(os.path.abspath(run.folder)) / "render" / f"{name}_iter{run.iteration}"
         _check_out(out, args.overwrite)
-    c2w, intrinsics = path_cameras(run, path, args.frames or FRAMES_DEFAULT, args.scale, args.elevation)
+    if replay:
+        c2w, intrinsics = replay.c2w, tuple(_scaled(k, args.scale) for k in replay.intrinsics)
+        path = os.path.abspath(path)
+    else:
+        c2w, intrinsics = path_cameras(run, path, args.frames or FRAMES_DEFAULT, args.scale, args.elevation)
     teacher = None
     if args.compare:   # before rendering: a missing teacher checkpoint is found now, not after the frames
         if run.iteration == 0:
@@ -302,7 +361,7 @@ def _run(args) -> int:
                              field="--compare")
         teacher = with_iteration(run, 0, device, flag="--compare")
     _check_memory(intrinsics, renders=2 if teacher is not None else 1)
-    print(f"{PROG}: {run.scene.name}, iteration {run.iteration}{' and the teacher' if teacher else ''}, {path} "
+    print(f"{PROG}: {run.scene.name}, iteration {run.iteration}{' and the teacher' if teacher else ''}, {name} "
           f"path: {len(c2w)} frames at {intrinsics[0].width}x{intrinsics[0].height}")
     frames = render_frames(run, c2w, intrinsics, device=device, progress=not args.quiet)
     compare = None
@@ -310,13 +369,14 @@ def _run(args) -> int:
         first = render_frames(teacher, c2w, intrinsics, device=device, progress=not args.quiet)
         compare = side_by_side(first["rgb"], frames["rgb"], ("teacher", f"iteration {run.iteration}"))
     record = dict(senerf_render=__version__, run=os.path.abspath(run.folder), iteration=run.iteration,
-                  compared_with=0 if compare is not None else None, path=path, fps=args.fps,
+                  compared_with=0 if compare is not None else None, path=path, format=args.format, fps=fps,
                   convention="OpenCV camera-to-world (x right, y down, z forward), the scene's world frame; "
                              "intrinsics fx, fy, cx, cy, width, height (pixel centres at i + 0.5)",
                   intrinsics=[[k.fx, k.fy, k.cx, k.cy, k.width, k.height] for k in intrinsics], c2w=c2w.tolist())
-    write_output(out, frames, record, args.fps, args.overwrite, compare=compare)
-    gifs = "rgb.gif, depth.gif and compare.gif" if compare is not None else "rgb.gif and depth.gif"
-    print(f"{PROG}: {len(c2w)} frames, {gifs} in {out}")
+    write_output(out, frames, record, fps, args.overwrite, compare=compare, fmt=args.format)
+    names = ["rgb", "depth", *(["compare"] if compare is not None else [])]
+    files = [f"{n}_XXX.png" if args.format == "png" else f"{n}.{args.format}" for n in names]
+    print(f"{PROG}: {len(c2w)} frames, {', '.join(files[:-1])} and {files[-1]} in {out}")
     return 0
 
 

@@ -87,7 +87,7 @@ def test_the_test_path_reproduces_the_renders_senerf_fit_scored(runs, tmp_path, 
     run = getattr(runs, which)
     out = tmp_path / "t"
     flags = [] if iteration is None else ["--iteration", str(iteration)]
-    assert main([str(run), "--path", "test", "--out", str(out), "--quiet", *flags]) == 0
+    assert main([str(run), "--path", "test", "--out", str(out), "--quiet", "--format", "png", *flags]) == 0
     k = 1 if which == "st" and iteration is None else iteration or 0
     scored = sorted((run / f"iter_{k}" / "test").glob("rgb_*.png"))
     assert len(scored) == 3
@@ -100,15 +100,16 @@ def test_the_test_path_reproduces_the_renders_senerf_fit_scored(runs, tmp_path, 
 
 
 def test_iterations_differ_and_the_last_is_the_default(runs, tmp_path):
+    common = ["--path", "test", "--quiet", "--format", "png"]
     for it in ("0", "1"):
-        assert main([str(runs.st), "--path", "test", "--iteration", it, "--out", str(tmp_path / it), "--quiet"]) == 0
-    assert main([str(runs.st), "--path", "test", "--out", str(tmp_path / "last"), "--quiet"]) == 0
+        assert main([str(runs.st), "--iteration", it, "--out", str(tmp_path / it), *common]) == 0
+    assert main([str(runs.st), "--out", str(tmp_path / "last"), *common]) == 0
     last, one, zero = (iio.imread(tmp_path / name / "rgb_000.png") for name in ("last", "1", "0"))
     np.testing.assert_array_equal(last, one)
     assert not np.array_equal(one, zero)
 
 
-def test_the_default_orbit_writes_frames_gifs_and_the_poses(runs, tmp_path, capsys):
+def test_the_default_orbit_writes_videos_and_the_poses(runs, tmp_path, capsys):
     import torch
 
     from senerf.data import load_scene
@@ -123,18 +124,14 @@ def test_the_default_orbit_writes_frames_gifs_and_the_poses(runs, tmp_path, caps
     finally:
         torch.set_num_threads(before)
     out = run / "render" / "orbit_iter1"                    # the last finished iteration, the object default
-    assert f"in {out}" in capsys.readouterr().out
+    assert f"rgb.mp4 and depth.mp4 in {out}" in capsys.readouterr().out
+    assert sorted(p.name for p in out.iterdir()) == ["depth.mp4", "path.json", "rgb.mp4"]   # mp4 by default
     record = json.loads((out / "path.json").read_text())
     scene = load_scene(runs.scene)
     np.testing.assert_allclose(record["c2w"], orbit_path(scene.c2w[[0, 1, 3]], 6), atol=1e-12)
     k = scene.intrinsics_all[0]
     assert record["intrinsics"] == [[k.fx, k.fy, k.cx, k.cy, 16, 16]] * 6
-    for name in ("rgb", "depth"):
-        assert sorted(p.name for p in out.glob(f"{name}_*.png")) == [f"{name}_{i:03d}.png" for i in range(6)]
-        assert iio.imread(out / f"{name}.gif", index=None).shape[:3] == (6, 16, 16)
-        meta = iio.immeta(out / f"{name}.gif")
-        assert meta["duration"] == 100 and meta["loop"] == 0   # 1000 / 10 ms a frame, forever
-    np.testing.assert_array_equal(iio.imread(out / "rgb_000.png"), iio.imread(out / "rgb.gif", index=0)[..., :3])
+    assert record["format"] == "mp4" and record["fps"] == 10.0
     assert _beside(out) == []                               # no partial folder left
 
 
@@ -211,10 +208,10 @@ def test_depth_colours_span_the_1st_to_99th_percentile_of_opaque_pixels(monkeypa
 
 def test_compare_puts_the_teacher_beside_the_rendered_iteration(runs, tmp_path, capsys):
     teacher, last, both = tmp_path / "t", tmp_path / "l", tmp_path / "b"
-    common = ["--frames", "3", "--quiet"]
+    common = ["--frames", "3", "--quiet", "--format", "png"]
     assert main([str(runs.st), "--iteration", "0", "--out", str(teacher), *common]) == 0
     assert main([str(runs.st), "--out", str(last), *common]) == 0
-    assert main([str(runs.st), "--out", str(both), "--compare", *common]) == 0
+    assert main([str(runs.st), "--out", str(both), "--compare", *common[:-1], "gif"]) == 0
     assert "compare.gif" in capsys.readouterr().out
     gif = iio.imread(both / "compare.gif", index=None)[..., :3]
     assert gif.shape == (3, 18 + 16, 16 + 4 + 16, 3)
@@ -227,7 +224,6 @@ def test_compare_puts_the_teacher_beside_the_rendered_iteration(runs, tmp_path, 
         assert mad(gif[i, 18:, 20:], s) < 1.5 < mad(gif[i, 18:, 20:], t)
         assert (gif[i, :, 16:20] == 255).all()                                     # the gap, header included:
         assert (gif[i, :18, :16] < 128).any() and (gif[i, :18, 20:] < 128).any()   # each label within its panel
-    np.testing.assert_array_equal(iio.imread(both / "rgb_001.png"), iio.imread(last / "rgb_001.png"))
     assert json.loads((both / "path.json").read_text())["compared_with"] == 0
 
 
@@ -254,7 +250,151 @@ def test_side_by_side_places_both_stacks_and_checks_them():
         side_by_side(a.astype(np.float32), a, ("l", "r"))
 
 
-# --- camera paths ----------------------------------------------------------------------------------------------
+# --- output formats and videos ---------------------------------------------------------------------------------
+
+
+def _decode(mp4: Path) -> tuple[dict, np.ndarray]:
+    """The stream's metadata as the bundled ffmpeg reads it (codec, pix_fmt, size, fps) and its decoded frames
+    ``(n, H, W, 3)`` uint8."""
+    import imageio_ffmpeg
+
+    reader = imageio_ffmpeg.read_frames(str(mp4))
+    meta = next(reader)
+    w, h = meta["size"]
+    return meta, np.stack([np.frombuffer(b, np.uint8).reshape(h, w, 3) for b in reader])
+
+
+def _psnr(a: np.ndarray, b: np.ndarray) -> float:
+    return float(10.0 * np.log10(255.0 ** 2 / np.mean((a.astype(np.float64) - b.astype(np.float64)) ** 2)))
+
+
+def _luma(rgb: np.ndarray) -> np.ndarray:
+    """BT.601 luma ``(..., )`` of ``rgb (..., 3)``: the channel yuv420p keeps at full resolution."""
+    return rgb.astype(np.float64) @ np.array([0.299, 0.587, 0.114])
+
+
+@pytest.mark.parametrize("scale, size", [("1", (16, 16)), ("0.9375", (15, 15))])
+def test_the_mp4s_play_as_h264_yuv420p_of_even_size_close_to_the_png_frames(runs, tmp_path, scale, size):
+    """Decoded by ffmpeg, the videos hold every frame in order, at the frame rate asked for, each frame's luma
+    within 30 dB of the lossless PNG of the same render (a neighbouring frame is under 28 dB).  yuv420p keeps
+    colour at half resolution, which costs a 16-pixel colour-mapped depth most (about 23 dB in RGB): the RGB
+    bound is for the photo-like rgb.mp4 only.  An odd 15 x 15 render is padded to 16 x 16 by repeating its last
+    row and column."""
+    common = [str(runs.st), "--frames", "5", "--fps", "8", "--scale", scale, "--quiet"]
+    assert main([*common, "--out", str(tmp_path / "mp4")]) == 0
+    assert main([*common, "--out", str(tmp_path / "png"), "--format", "png"]) == 0
+    h, w = size
+    for name in ("rgb", "depth"):
+        meta, video = _decode(tmp_path / "mp4" / f"{name}.mp4")
+        assert meta["codec"] == "h264" and meta["pix_fmt"].startswith("yuv420p") and meta["fps"] == 8.0
+        assert meta["size"] == (w + w % 2, h + h % 2) and video.shape[0] == 5
+        pngs = np.stack([iio.imread(tmp_path / "png" / f"{name}_{i:03d}.png") for i in range(5)])
+        assert min(_psnr(_luma(v[:h, :w]), _luma(png)) for v, png in zip(video, pngs)) > 30.0
+        if name == "rgb":
+            assert _psnr(video[:, :h, :w], pngs) > 30.0
+        if h % 2:   # the repeated edge, as close to the last rendered row and column
+            assert _psnr(_luma(video[:, h, :w]), _luma(pngs[:, h - 1])) > 30.0
+            assert _psnr(_luma(video[:, :h, w]), _luma(pngs[:, :, w - 1])) > 30.0
+
+
+@pytest.mark.parametrize("fmt, names", [
+    ("mp4", ["compare.mp4", "depth.mp4", "path.json", "rgb.mp4"]),
+    ("gif", ["compare.gif", "depth.gif", "path.json", "rgb.gif"]),
+    ("png", [f"{n}_{i:03d}.png" for n in ("compare", "depth") for i in range(2)] + ["path.json"]
+     + [f"rgb_{i:03d}.png" for i in range(2)]),
+])
+def test_each_format_writes_only_its_own_files(runs, tmp_path, capsys, fmt, names):
+    out = tmp_path / "o"
+    assert main([str(runs.st), "--out", str(out), "--frames", "2", "--fps", "10", "--compare", "--quiet",
+                 "--format", fmt]) == 0
+    assert sorted(p.name for p in out.iterdir()) == names
+    assert json.loads((out / "path.json").read_text())["format"] == fmt
+    assert "compare" in capsys.readouterr().out
+    if fmt == "gif":
+        meta = iio.immeta(out / "rgb.gif")
+        assert meta["duration"] == 100 and meta["loop"] == 0   # 1000 / 10 ms a frame, forever
+    if fmt == "png":
+        assert iio.imread(out / "compare_001.png").shape == (18 + 16, 16 + 4 + 16, 3)
+
+
+# --- camera path files ----------------------------------------------------------------------------------------
+
+
+def test_a_saved_camera_path_is_replayed_at_its_own_size_and_frame_rate(runs, tmp_path, capsys):
+    from senerf.camerapath import write_camera_path
+    from senerf.data import load_scene
+
+    scene = load_scene(runs.scene)
+    keys, f = scene.c2w[[5, 6, 7]], scene.intrinsics_all[0].fx
+    k = Intrinsics(0.75 * f, 0.75 * f, 6.0, 5.0, 12, 10)     # not the fit's 16 x 16
+    cam = write_camera_path(tmp_path / "cam.json", keys, k, fps=8.0, frames=3)
+    assert main([str(runs.st), "--path", str(cam), "--quiet"]) == 0
+    out = runs.st / "render" / "cam_iter1"
+    assert f"in {out}" in capsys.readouterr().out
+    record = json.loads((out / "path.json").read_text())
+    np.testing.assert_allclose(record["c2w"], keys, atol=1e-12)   # frames == keyframes: the keyframes themselves
+    assert record["intrinsics"] == [[k.fx, k.fy, 6.0, 5.0, 12, 10]] * 3
+    assert record["path"] == str(cam) and record["fps"] == 8.0
+    meta, video = _decode(out / "rgb.mp4")
+    assert meta["size"] == (12, 10) and meta["fps"] == 8.0 and len(video) == 3
+    # --frames resamples the path (through its first and last keyframe), --scale and --fps apply
+    assert main([str(runs.st), "--path", str(cam), "--frames", "5", "--scale", "2", "--fps", "4", "--quiet",
+                 "--format", "png", "--out", str(tmp_path / "o")]) == 0
+    record = json.loads((tmp_path / "o" / "path.json").read_text())
+    np.testing.assert_allclose(np.array(record["c2w"])[[0, -1]], keys[[0, -1]], atol=1e-9)
+    assert len(record["c2w"]) == 5 and record["intrinsics"][0][4:] == [24, 20] and record["fps"] == 4.0
+    assert iio.imread(tmp_path / "o" / "rgb_004.png").shape == (20, 24, 3)
+
+
+def test_a_nerfstudio_camera_path_is_accepted(runs, tmp_path):
+    from senerf.data import load_scene
+
+    c2w = load_scene(runs.scene).c2w[[5, 6]]
+    gl = c2w @ np.diag([1.0, -1.0, -1.0, 1.0])   # nerfstudio's poses are OpenGL camera-to-world
+    doc = dict(render_width=16, render_height=14, fps=24,
+               camera_path=[dict(camera_to_world=m.reshape(-1).tolist(), fov=50.0) for m in gl])
+    (tmp_path / "camera_path.json").write_text(json.dumps(doc))
+    out = tmp_path / "o"
+    assert main([str(runs.st), "--path", str(tmp_path / "camera_path.json"), "--out", str(out), "--quiet"]) == 0
+    record = json.loads((out / "path.json").read_text())
+    np.testing.assert_allclose(record["c2w"], c2w, atol=1e-12)
+    fy = 7.0 / np.tan(np.radians(25.0))   # half the height over the tangent of half the vertical field of view
+    np.testing.assert_allclose(record["intrinsics"][0], [fy, fy, 8.0, 7.0, 16, 14])
+    meta, video = _decode(out / "rgb.mp4")
+    assert meta["size"] == (16, 14) and meta["fps"] == 24.0 and len(video) == 2
+
+
+@pytest.mark.parametrize("content, needle", [
+    (None, "--path: '{cam}' is neither orbit, spiral, test nor a camera path file (not found)"),
+    ("{not json", "cannot be read as JSON"),
+    ("[1, 2]", "is neither a senerf camera path"),
+    ('{"senerf_camera_path": 1, "keyframes": []}', "keyframes: expected a non-empty list"),
+])
+def test_a_bad_camera_path_file_is_one_line_naming_it_and_writes_nothing(runs, tmp_path, capsys, content, needle):
+    cam = tmp_path / "cam.json"
+    if content is not None:
+        cam.write_text(content)
+    run = _copy(runs.st, tmp_path)
+    assert main([str(run), "--path", str(cam), "--quiet"]) == 2
+    assert (needle.format(cam=cam) if content is None else f"{cam}: {needle}") in _error(capsys)
+    assert not (run / "render").exists()
+
+
+def test_a_camera_paths_frame_rate_over_50_is_refused_for_a_gif_only(runs, tmp_path, capsys):
+    from senerf.camerapath import write_camera_path
+    from senerf.data import load_scene
+
+    scene = load_scene(runs.scene)
+    cam = write_camera_path(tmp_path / "cam.json", scene.c2w[[5]], scene.intrinsics_all[5], fps=60.0, frames=2)
+    argv = [str(runs.st), "--path", str(cam), "--quiet", "--out"]
+    assert main([*argv, str(tmp_path / "gif"), "--format", "gif"]) == 2
+    assert "--fps: a GIF plays at most 50 frames a second, got 60 (the camera path file's)" in _error(capsys)
+    assert main([*argv, str(tmp_path / "gif"), "--format", "gif", "--fps", "30"]) == 0
+    assert main([*argv, str(tmp_path / "mp4")]) == 0
+    assert _decode(tmp_path / "mp4" / "rgb.mp4")[0]["fps"] == 60.0
+
+
+# --- orbits and spirals ---------------------------------------------------------------------------------------
 
 
 def _k(f):
@@ -364,7 +504,9 @@ def test_forward_facing_runs_default_to_the_spiral_of_60_frames(runs, tmp_path, 
     (["--frames", "0"], "--frames"),
     (["--frames", "10001"], "--frames"),
     (["--fps", "0.001"], "--fps"),   # a GIF delay over 655.35 s
-    (["--fps", "60"], "--fps"),
+    (["--fps", "241"], "--fps"),
+    (["--fps", "60", "--format", "gif"], "--fps: a GIF plays at most 50 frames a second, got 60"),
+    (["--format", "avi"], "--format"),
     (["--elevation", "90"], "--elevation"),
     (["--path", "test", "--frames", "5"], "--frames"),
     (["--path", "zigzag"], "--path"),
@@ -454,7 +596,7 @@ def test_a_scene_whose_files_changed_since_the_fit_is_rendered_with_a_warning(ru
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith(f"senerf-render: warning: {run / 'run.json'}")
     assert "test/r_1.png" in err[0]
-    assert (tmp_path / "changed" / "rgb.gif").is_file()
+    assert (tmp_path / "changed" / "rgb.mp4").is_file()
     # a run of some views only: the photos it did not read are not compared (no false warning)
     assert main([str(runs.st), "--path", "test", "--out", str(tmp_path / "st"), "--quiet"]) == 0
     assert "warning" not in capsys.readouterr().err
@@ -502,7 +644,7 @@ def _frames(out: Path) -> int:
 
 def test_an_existing_out_is_refused_without_overwrite_and_replaced_whole_with_it(runs, tmp_path, capsys):
     out = tmp_path / "r"
-    argv = [str(runs.base), "--out", str(out), "--quiet"]
+    argv = [str(runs.base), "--out", str(out), "--quiet", "--format", "png"]
     assert main([*argv, "--frames", "3"]) == 0
     assert main([*argv, "--frames", "2"]) == 2
     assert f"{out}: exists; use --overwrite" in _error(capsys)
@@ -541,22 +683,23 @@ def test_an_interrupt_mid_render_or_mid_write_leaves_no_output_and_no_partial_fo
     spy = CallSpy(evaluate.camera_rays)
     monkeypatch.setattr(evaluate, "camera_rays", spy)
     spy.stop_at = 2   # Ctrl-C while rendering the second frame
-    assert main([str(runs.base), "--out", str(out), "--frames", "3", "--quiet"]) == 130
+    png = ["--frames", "3", "--quiet", "--format", "png"]
+    assert main([str(runs.base), "--out", str(out), *png]) == 130
     assert "interrupted" in capsys.readouterr().err
     assert not (tmp_path / "a").exists()   # nothing was created for it
     monkeypatch.undo()
     writes = CallSpy(senerf.train.write_png)
     monkeypatch.setattr(senerf.train, "write_png", writes)
     writes.stop_at = 4   # Ctrl-C while writing the frames
-    assert main([str(runs.base), "--out", str(out), "--frames", "3", "--quiet"]) == 130
+    assert main([str(runs.base), "--out", str(out), *png]) == 130
     assert not out.exists() and _beside(out) == []
-    assert main([str(runs.base), "--out", str(tmp_path / "old"), "--frames", "3", "--quiet"]) == 0
+    assert main([str(runs.base), "--out", str(tmp_path / "old"), *png]) == 0
     writes.calls = 0   # over an earlier output with --overwrite: the earlier output stays whole
-    assert main([str(runs.base), "--out", str(tmp_path / "old"), "--frames", "2", "--quiet", "--overwrite"]) == 130
+    assert main([str(runs.base), "--out", str(tmp_path / "old"), *png, "--frames", "2", "--overwrite"]) == 130
     assert _frames(tmp_path / "old") == 3 and len(list((tmp_path / "old").glob("*.png"))) == 6
     assert _beside(tmp_path / "old") == []
     writes.calls, writes.stop_at = 0, None
-    assert main([str(runs.base), "--out", str(out), "--frames", "3", "--quiet"]) == 0   # the rerun starts over
+    assert main([str(runs.base), "--out", str(out), *png]) == 0   # the rerun starts over
     assert _frames(out) == 3
 
 
@@ -575,6 +718,8 @@ def test_an_interrupt_between_the_renames_puts_the_earlier_output_back(runs, tmp
 
 
 def test_a_failed_write_is_one_line_and_keeps_the_earlier_output(runs, tmp_path, capsys, monkeypatch):
+    import imageio_ffmpeg
+
     import senerf.train
 
     out = tmp_path / "o"
@@ -583,8 +728,12 @@ def test_a_failed_write_is_one_line_and_keeps_the_earlier_output(runs, tmp_path,
     def full_disk(path, image):
         raise OSError(28, "No space left on device")
     monkeypatch.setattr(senerf.train, "write_png", full_disk)
-    assert main([str(runs.base), "--out", str(out), "--frames", "2", "--quiet", "--overwrite"]) == 2
+    assert main([str(runs.base), "--out", str(out), "--frames", "2", "--quiet", "--overwrite", "--format", "png"]) == 2
     assert f"{out}: cannot write there (No space left on device)" in _error(capsys)
+    assert _frames(out) == 3 and _beside(out) == []
+    monkeypatch.setattr(imageio_ffmpeg, "get_ffmpeg_exe", lambda: shutil.which("false"))   # ffmpeg fails, silently
+    assert main([str(runs.base), "--out", str(out), "--frames", "2", "--quiet", "--overwrite"]) == 2
+    assert f"{out}: cannot write there (ffmpeg: exit status 1)" in _error(capsys)
     assert _frames(out) == 3 and _beside(out) == []
 
 
@@ -605,7 +754,7 @@ main(sys.argv[1:])
 
 def test_a_render_killed_outright_leaves_a_partial_folder_the_next_render_removes(runs, tmp_path, capsys):
     out = tmp_path / "o"
-    argv = [str(runs.base), "--out", str(out), "--frames", "2", "--quiet"]
+    argv = [str(runs.base), "--out", str(out), "--frames", "2", "--quiet", "--format", "png"]
     killed = subprocess.run([sys.executable, "-c", _KILLED_MID_WRITE, *argv], capture_output=True, timeout=300,
                             cwd=Path(fly.__file__).parents[1])
     assert killed.returncode == -signal.SIGKILL, killed.stderr.decode()

@@ -298,6 +298,6 @@ def test_an_rgb_capture_around_a_room_is_fitted_unbounded_self_trained_and_orbit
     assert len(result.psnr) == 2 and np.isfinite(result.psnr).all()
     labels = result.metrics["iterations"][1]["reliable_fraction"]
     assert labels is not None and 0.0 < labels < 1.0   # every pseudo pixel scored, some reliable, some not
-    assert render_main([str(tmp_path / "fit"), "--frames", "3", "--quiet"]) == 0
+    assert render_main([str(tmp_path / "fit"), "--frames", "3", "--quiet", "--format", "png"]) == 0
     frames = sorted((tmp_path / "fit" / "render" / "orbit_iter1").glob("rgb_*.png"))
     assert len(frames) == 3 and all(iio.imread(f).std() > 0 for f in frames)
