@@ -13,7 +13,7 @@ from __future__ import annotations
 import torch
 import torch.nn.functional as F
 
-__all__ = ["PAIRS", "plane_layout", "plane_interp", "plane_interp_reference"]
+__all__ = ["PAIRS", "plane_layout", "plane_interp", "plane_interp_reference", "plane_tv", "plane_tv_reference"]
 
 #: lookups per backward chunk: keeps each temporary at a few MB so the allocator reuses heap memory
 _CHUNK = 1 << 15
@@ -126,3 +126,61 @@ def plane_interp_reference(planes: list[torch.Tensor], u: torch.Tensor, pairs=PA
         feats.append(s[0, :, :, 0].t())
     n_s = len(planes) // n_p
     return torch.stack(feats, dim=1).view(u.shape[0], n_s, n_p, planes[0].shape[0])
+
+
+def _planes(table: torch.Tensor, resolutions: tuple[int, ...], offsets: list[int]):
+    """The ``(r, r, F)`` views of every plane in ``table``, scale-major (as :func:`plane_layout` lays them out)."""
+    n_planes = len(offsets) // len(resolutions)
+    for k, o in enumerate(offsets):
+        r = resolutions[k // n_planes]
+        yield table[o:o + r * r].view(r, r, table.shape[-1])
+
+
+def plane_tv_reference(table: torch.Tensor, resolutions: tuple[int, ...], offsets: list[int]) -> torch.Tensor:
+    """Plane total variation ``mean(d_b^2) + mean(d_a^2)`` per plane (``d``: differences of neighbouring texels
+    along each axis), summed over the planes, averaged over the scales; plain autograd through slices of
+    ``table (rows, F)``.  Each slice's backward fills a gradient of the whole table, which makes this the costly
+    part of a step for large planes: :func:`plane_tv` is the same value with one gradient buffer."""
+    total = table.new_zeros(())
+    for pl in _planes(table, resolutions, offsets):
+        total = total + (pl[1:] - pl[:-1]).square().mean() + (pl[:, 1:] - pl[:, :-1]).square().mean()
+    return total / len(resolutions)
+
+
+class _PlaneTV(torch.autograd.Function):
+    """:func:`plane_tv_reference` with its gradient written plane by plane into one zeroed ``(rows, F)`` buffer."""
+
+    @staticmethod
+    def forward(ctx, table, resolutions, offsets):
+        ctx.save_for_backward(table)
+        ctx.layout = (resolutions, offsets)
+        with torch.no_grad():
+            return plane_tv_reference(table, resolutions, offsets)
+
+    @staticmethod
+    def backward(ctx, grad_out):
+        (table,) = ctx.saved_tensors
+        resolutions, offsets = ctx.layout
+        grad = torch.zeros_like(table)
+        scale = 2.0 * grad_out / len(resolutions)
+        for pl, g in zip(_planes(table, resolutions, offsets), _planes(grad, resolutions, offsets)):
+            for axis in (0, 1):   # d/dp of mean(d^2), d = p[1:] - p[:-1] along the axis: 2 d / n at +1, -2 d / n at 0
+                d = torch.diff(pl, dim=axis)
+                d = d * (scale / d.numel())
+                g.narrow(axis, 1, d.shape[axis]).add_(d)
+                g.narrow(axis, 0, d.shape[axis]).sub_(d)
+        return grad, None, None
+
+
+def plane_tv(table: torch.Tensor, resolutions: tuple[int, ...], offsets: list[int]) -> torch.Tensor:
+    """:func:`plane_tv_reference`, differentiable with respect to ``table (rows, F)`` at the cost of one gradient
+    buffer (the reference pays one per slice).
+
+    Example:
+        >>> offsets, rows = plane_layout((2,), 1)
+        >>> table = torch.tensor([[0.0], [1.0], [0.0], [1.0]], requires_grad=True)   # one 2x2 plane, columns differ
+        >>> loss = plane_tv(table, (2,), offsets)
+        >>> float(loss), table.grad is None
+        (1.0, True)
+    """
+    return _PlaneTV.apply(table, tuple(resolutions), list(offsets))

@@ -8,7 +8,7 @@ from torch import nn
 from .base import RadianceField, as_aabb, check_points, field_coords, trunc_exp
 from .ckernel import fused_plane_features, kernel_status
 from .encoding import sh_encoding
-from .interp import PAIRS, plane_interp, plane_interp_reference, plane_layout
+from .interp import PAIRS, plane_interp, plane_interp_reference, plane_layout, plane_tv
 from .mlp import make_generator, relu_mlp, seeded_linear
 
 __all__ = ["KPlanesField"]
@@ -137,10 +137,6 @@ class KPlanesField(RadianceField):
         return self._decode(xyz, dirs, with_rgb=True)
 
     def regularizer(self) -> torch.Tensor:
-        """Plane total variation ``mean(d_a^2) + mean(d_b^2)`` per plane, summed over planes, averaged over scales."""
-        total = self.table.new_zeros(())
-        for s in range(len(self.resolutions)):
-            for p in range(len(PAIRS)):
-                pl = self.plane(s, p)
-                total = total + (pl[1:] - pl[:-1]).square().mean() + (pl[:, 1:] - pl[:, :-1]).square().mean()
-        return total / len(self.resolutions)
+        """Plane total variation ``mean(d_a^2) + mean(d_b^2)`` per plane, summed over planes, averaged over scales
+        (:func:`~senerf.fields.interp.plane_tv`)."""
+        return plane_tv(self.table, self.resolutions, self.offsets)
