@@ -1,11 +1,11 @@
-"""Tests of senerf/fields/interp.py: the plane layout and bilinear interpolation by hand."""
+"""Tests of senerf/fields/interp.py: the plane layout, bilinear interpolation by hand, and plane TV."""
 
 from __future__ import annotations
 
 import pytest
 import torch
 
-from senerf.fields.interp import plane_interp, plane_interp_reference, plane_layout
+from senerf.fields.interp import plane_interp, plane_interp_reference, plane_layout, plane_tv, plane_tv_reference
 
 
 def test_plane_layout_by_hand_and_refuses_planes_of_fewer_than_two_texels():
@@ -33,3 +33,39 @@ def test_plane_interp_by_hand_on_2x2_planes(dtype):
 def test_the_grid_sample_reference_takes_zero_points():
     planes = [torch.rand(4, 5, 5) for _ in range(6)]   # two scales x three planes, four features
     assert plane_interp_reference(planes, torch.zeros(0, 3)).shape == (0, 2, 3, 4)
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_plane_tv_and_its_gradient_equal_the_slicing_reference(dtype):
+    """The analytic backward (one gradient buffer) gives autograd's gradient through slices, on planes of two scales
+    and three features, scaled by the incoming gradient."""
+    resolutions = (3, 5)
+    offsets, rows = plane_layout(resolutions)
+    values = torch.rand(rows, 3, generator=torch.Generator().manual_seed(0), dtype=dtype)
+    grads = []
+    for tv in (plane_tv, plane_tv_reference):
+        table = values.clone().requires_grad_()
+        loss = tv(table, resolutions, offsets)
+        (2.5 * loss).backward()
+        grads.append((loss.detach(), table.grad))
+    (fast, g_fast), (ref, g_ref) = grads
+    assert fast == ref and g_fast.dtype == dtype
+    torch.testing.assert_close(g_fast, g_ref, rtol=1e-6 if dtype == torch.float32 else 1e-13, atol=0.0)
+
+
+def test_plane_tv_gradient_of_a_bump_by_hand():
+    """One 3x3 plane, one feature, a bump h at the centre: along each axis 2 of the 6 differences are +-h, so
+    TV = 2 (2 h^2 / 6) (both axes, one scale); the centre is in 4 differences, d TV / d centre = 4 (2 h / 6), and
+    each of its 4 neighbours is in one, -2 h / 6."""
+    offsets, rows = plane_layout((3,), 1)
+    table = torch.zeros(rows, 1, dtype=torch.float64)
+    table[4, 0] = 0.5   # row b=1, column a=1
+    table.requires_grad_()
+    loss = plane_tv(table, (3,), offsets)
+    loss.backward()
+    assert float(loss) == pytest.approx(2 * 2 * 0.25 / 6)
+    grad = table.grad.view(3, 3)
+    assert float(grad[1, 1]) == pytest.approx(4 * 2 * 0.5 / 6)
+    for b, a in ((0, 1), (2, 1), (1, 0), (1, 2)):
+        assert float(grad[b, a]) == pytest.approx(-2 * 0.5 / 6)
+    assert float(grad[0, 0]) == 0.0
