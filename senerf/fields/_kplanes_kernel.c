@@ -10,6 +10,7 @@
  * Backward: gtable[row] += w_corner * gout[n, s NF + f] * prod_{q != p} bilinear_q(f); each caller owns its
  * gtable buffer (no races).  Corner rows of point n + PD are prefetched while point n is processed (the
  * planes are larger than the caches; the gathers are latency bound).
+ * Total variation (kp_tv): one pass over a plane's rows, for the loss and, in the backward, the gradient.
  */
 #include <stdint.h>
 #include <math.h>
@@ -159,4 +160,34 @@ void kp_sh4(const REAL *dirs, int64_t n0, int64_t n1, REAL *out) {
         o[14] = (REAL)1.4453057213202769 * z * (x2 - y2);
         o[15] = (REAL)0.59004358992664352 * x * (-x2 + (REAL)3.0 * y2);
     }
+}
+
+/* Total variation of one r x r plane (rows b of texels (a, b), NF features each), rows [b0, b1): returns the sum of
+ * the squared differences to the next texel along a and along b (each difference counted by the texel before it).
+ * With grad, also writes grad[b][a] = c * d/dp of that sum / 2 = c * (sum of p - neighbour over its 2-4 neighbours):
+ * every texel of the range is written once, by this call alone, so ranges can run on threads without races. */
+double kp_tv(const REAL *plane, int64_t r, int64_t b0, int64_t b1, REAL c, REAL *grad) {
+    double total = 0.0;
+    for (int64_t b = b0; b < b1; ++b) {
+        REAL acc[NF];
+        for (int f = 0; f < NF; ++f) acc[f] = 0;
+        for (int64_t a = 0; a < r; ++a) {
+            const REAL *restrict p = plane + (b * r + a) * NF;
+            REAL g[NF];
+            for (int f = 0; f < NF; ++f) g[f] = 0;
+            if (a + 1 < r)
+                for (int f = 0; f < NF; ++f) { REAL d = p[NF + f] - p[f]; acc[f] += d * d; g[f] -= d; }
+            if (b + 1 < r)
+                for (int f = 0; f < NF; ++f) { REAL d = p[r * NF + f] - p[f]; acc[f] += d * d; g[f] -= d; }
+            if (!grad) continue;
+            if (a > 0)
+                for (int f = 0; f < NF; ++f) g[f] += p[f] - p[f - NF];
+            if (b > 0)
+                for (int f = 0; f < NF; ++f) g[f] += p[f] - p[f - r * NF];
+            REAL *restrict out = grad + (b * r + a) * NF;
+            for (int f = 0; f < NF; ++f) out[f] = c * g[f];
+        }
+        for (int f = 0; f < NF; ++f) total += acc[f];
+    }
+    return total;
 }

@@ -1,4 +1,5 @@
-"""The compiled fused K-Planes kernel (``_kplanes_kernel.c``, package data): build, load, call.
+"""The compiled fused K-Planes kernel (``_kplanes_kernel.c``, package data: plane features, their gradient, the
+planes' total variation and SH encoding): build, load, call.
 
 On first use the source is compiled (``$CC``, else ``cc`` or ``gcc``; ``-march=native`` where the compiler knows it)
 and loaded with :mod:`ctypes`; where it cannot be, :func:`load_kernel` returns ``None``, :func:`kernel_status` says
@@ -28,7 +29,7 @@ from pathlib import Path
 import torch
 
 __all__ = ["load_kernel", "kernel_status", "cpu_planes_path", "cpu_planes_warning", "warn_without_kernel",
-           "fused_plane_features", "fused_sh4", "MAX_FEATURES", "MAX_SCALES"]
+           "fused_plane_features", "fused_sh4", "fused_plane_tv", "MAX_FEATURES", "MAX_SCALES"]
 
 MAX_FEATURES = 256
 MAX_SCALES = 8
@@ -148,6 +149,8 @@ def load_kernel(dtype: torch.dtype, n_features: int = 16):
                            ("kp_sh4", [ptr, i64, i64, ptr])):
         fn = getattr(lib, name)
         fn.argtypes, fn.restype = argtypes, None
+    real_t = ctypes.c_float if real == "float" else ctypes.c_double
+    lib.kp_tv.argtypes, lib.kp_tv.restype = [ptr, i64, i64, i64, real_t, ptr], ctypes.c_double
     _STATUS["status"] = "loaded"
     return lib
 
@@ -287,3 +290,53 @@ def fused_sh4(dirs: torch.Tensor):
     _run([functools.partial(lib.kp_sh4, dirs.data_ptr(), a, b, out.data_ptr())
           for a, b in _split(dirs.shape[0], torch.get_num_threads())], keep=(dirs, out))
     return out
+
+
+def _tv_pass(lib, table: torch.Tensor, resolutions, offsets, c: float, grad: torch.Tensor | None) -> float:
+    """One :c:func:`kp_tv` pass over every plane, its rows split over the threads: the sum of squared differences
+    of each plane divided by its count of differences, summed (and ``grad`` written, scaled by ``c`` / count)."""
+    nf, n_planes = table.shape[1], len(offsets) // len(resolutions)
+    total, keep = 0.0, (table,) if grad is None else (table, grad)
+    for k, o in enumerate(offsets):
+        r = resolutions[k // n_planes]
+        count = (r - 1) * r * nf   # differences along each axis
+        ptr = table.data_ptr() + o * nf * table.element_size()
+        out = 0 if grad is None else grad.data_ptr() + o * nf * grad.element_size()
+        step = -(-r // max(1, min(torch.get_num_threads(), r * r // 2048 + 1)))
+        rows = [(b, min(r, b + step)) for b in range(0, r, step)]   # whole texel rows, as _split sizes point ranges
+        parts = [0.0] * len(rows)
+
+        def call(i, b0, b1):
+            parts[i] = lib.kp_tv(ptr, r, b0, b1, c / count, out)
+
+        _run([functools.partial(call, i, b0, b1) for i, (b0, b1) in enumerate(rows)], keep=keep)
+        total += sum(parts) / count
+    return total
+
+
+class _FusedTV(torch.autograd.Function):
+    @staticmethod
+    def forward(ctx, table, resolutions, offsets, lib):
+        ctx.save_for_backward(table)
+        ctx.layout = (resolutions, offsets, lib)
+        return table.new_tensor(_tv_pass(lib, table, resolutions, offsets, 0.0, None) / len(resolutions))
+
+    @staticmethod
+    def backward(ctx, g):
+        (table,) = ctx.saved_tensors
+        resolutions, offsets, lib = ctx.layout
+        grad = torch.empty_like(table)
+        _tv_pass(lib, table, resolutions, offsets, 2.0 * float(g) / len(resolutions), grad)
+        return grad, None, None, None
+
+
+def fused_plane_tv(table: torch.Tensor, resolutions: tuple[int, ...], offsets: list[int]):
+    """:func:`senerf.fields.interp.plane_tv_reference` by the compiled kernel, one pass over the planes for the value
+    and one for the gradient, or ``None`` when it cannot be used (``table`` off the CPU, not contiguous, another
+    dtype, more than :data:`MAX_FEATURES` features, or no kernel)."""
+    if table.device.type != "cpu" or not table.is_contiguous() or table.shape[1] > MAX_FEATURES:
+        return None
+    lib = load_kernel(table.dtype, table.shape[1])
+    if lib is None:
+        return None
+    return _FusedTV.apply(table, tuple(resolutions), list(offsets), lib)

@@ -139,42 +139,18 @@ def _planes(table: torch.Tensor, resolutions: tuple[int, ...], offsets: list[int
 def plane_tv_reference(table: torch.Tensor, resolutions: tuple[int, ...], offsets: list[int]) -> torch.Tensor:
     """Plane total variation ``mean(d_b^2) + mean(d_a^2)`` per plane (``d``: differences of neighbouring texels
     along each axis), summed over the planes, averaged over the scales; plain autograd through slices of
-    ``table (rows, F)``.  Each slice's backward fills a gradient of the whole table, which makes this the costly
-    part of a step for large planes: :func:`plane_tv` is the same value with one gradient buffer."""
+    ``table (rows, F)``.  Each slice's backward fills a gradient of the whole table, which makes this a costly
+    part of a step for large planes: :func:`plane_tv` is the same value in two passes."""
     total = table.new_zeros(())
     for pl in _planes(table, resolutions, offsets):
         total = total + (pl[1:] - pl[:-1]).square().mean() + (pl[:, 1:] - pl[:, :-1]).square().mean()
     return total / len(resolutions)
 
 
-class _PlaneTV(torch.autograd.Function):
-    """:func:`plane_tv_reference` with its gradient written plane by plane into one zeroed ``(rows, F)`` buffer."""
-
-    @staticmethod
-    def forward(ctx, table, resolutions, offsets):
-        ctx.save_for_backward(table)
-        ctx.layout = (resolutions, offsets)
-        with torch.no_grad():
-            return plane_tv_reference(table, resolutions, offsets)
-
-    @staticmethod
-    def backward(ctx, grad_out):
-        (table,) = ctx.saved_tensors
-        resolutions, offsets = ctx.layout
-        grad = torch.zeros_like(table)
-        scale = 2.0 * grad_out / len(resolutions)
-        for pl, g in zip(_planes(table, resolutions, offsets), _planes(grad, resolutions, offsets)):
-            for axis in (0, 1):   # d/dp of mean(d^2), d = p[1:] - p[:-1] along the axis: 2 d / n at +1, -2 d / n at 0
-                d = torch.diff(pl, dim=axis)
-                d = d * (scale / d.numel())
-                g.narrow(axis, 1, d.shape[axis]).add_(d)
-                g.narrow(axis, 0, d.shape[axis]).sub_(d)
-        return grad, None, None
-
-
 def plane_tv(table: torch.Tensor, resolutions: tuple[int, ...], offsets: list[int]) -> torch.Tensor:
-    """:func:`plane_tv_reference`, differentiable with respect to ``table (rows, F)`` at the cost of one gradient
-    buffer (the reference pays one per slice).
+    """:func:`plane_tv_reference` of ``table (rows, F)``: on the CPU by the compiled kernel
+    (:func:`~senerf.fields.ckernel.fused_plane_tv`: one pass for the value, one writing the gradient), elsewhere, or
+    without a compiler, the reference.
 
     Example:
         >>> offsets, rows = plane_layout((2,), 1)
@@ -183,4 +159,7 @@ def plane_tv(table: torch.Tensor, resolutions: tuple[int, ...], offsets: list[in
         >>> float(loss), table.grad is None
         (1.0, True)
     """
-    return _PlaneTV.apply(table, tuple(resolutions), list(offsets))
+    from .ckernel import fused_plane_tv
+
+    fused = fused_plane_tv(table, resolutions, offsets)
+    return plane_tv_reference(table, resolutions, offsets) if fused is None else fused
