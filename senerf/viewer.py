@@ -95,6 +95,11 @@ def render_frame(run, c2w, intrinsics, show: str = "rgb") -> tuple[np.ndarray, n
     return to_uint8(out["rgb"][0]), z, acc
 
 
+def _fov(k) -> float:
+    """The vertical field of view (radians) of intrinsics ``k``."""
+    return 2.0 * math.atan(0.5 * k.height / k.fy)
+
+
 def _look_distance(scene, c2w: np.ndarray) -> float:
     """How far in front of ``c2w (4, 4)`` the scene's centre is (what the viewer orbits): the point the scene's
     cameras look at, or for a forward-facing capture NeRF's spiral focus depth."""
@@ -153,13 +158,15 @@ class Viewer:
         cams = run.cameras
         k = cams.intrinsics[int(cams.train[0])]
         self.pixels = k.width * k.height * settings.scale ** 2
-        self.start = cams.c2w[int(cams.test[0] if len(cams.test) else cams.train[0])]
-        self.start_fov = 2.0 * math.atan(0.5 * cams.intrinsics[0].height / cams.intrinsics[0].fy)
+        start = int(cams.test[0] if len(cams.test) else cams.train[0])   # every tab opens at the first test view
+        self.start, self.start_fov = cams.c2w[start], _fov(cams.intrinsics[start])
         self.server = server = viser.ViserServer(host=host, port=port, label=f"{PROG}: {run.scene.name}",
                                                  verbose=False)
-        self._scene_frame(viser)
         gui = server.gui
         gui.configure_theme(show_share_button=False)   # the share button tunnels the scene through viser's server
+        self.show_cameras = gui.add_checkbox("Cameras", True, hint="the training (blue) and pseudo (orange) views")
+        self.show_cameras.on_update(lambda e: self._show_cameras())
+        self._scene_frame()
         names = {k: f"{k}: teacher" if k == 0 else f"{k}: student" for k in run.finished}
         self.iteration_menu = gui.add_dropdown("Iteration", tuple(names.values()), initial_value=names[run.iteration])
         self.iteration_menu.on_update(lambda e: self.set_iteration(int(self.iteration_menu.value.split(":")[0])))
@@ -177,8 +184,8 @@ class Viewer:
         """``http://host:port/`` the viewer serves."""
         return f"http://{self.server.get_host()}:{self.server.get_port()}/"
 
-    def _scene_frame(self, viser) -> None:
-        """The scene's up axis, the first view of every tab (the first test view) and the training frustums."""
+    def _scene_frame(self) -> None:
+        """The scene's up axis, the view every tab opens at and the training frustums."""
         from senerf.geometry import default_up
         from senerf.train.evaluate import to_uint8
 
@@ -188,19 +195,28 @@ class Viewer:
         initial = self.server.initial_camera
         initial.position, initial.look_at = self.start[:3, 3], self.start[:3, 3] + look * self.start[:3, 2]
         initial.up, initial.fov = -self.start[:3, 1], self.start_fov
-        self.frustum_scale = 0.1 * look
+        centres = scene.c2w[:, :3, 3]
+        gaps = np.linalg.norm(centres[:, None] - centres[None], axis=-1) + np.diag(np.full(len(centres), np.inf))
+        self.frustum_scale = min(0.1 * look, 0.5 * float(np.median(gaps.min(axis=1)))) if len(centres) > 1 \
+            else 0.1 * look   # small beside the cameras' spacing: a forward-facing capture's are close together
+        self.frustums = []
         for i in run.train_idx:
             photo = scene.rgb[int(i)]
             step = max(1, -(-max(photo.shape[:2]) // _FRUSTUM_PIXELS))
-            self._frustum(f"/train/{int(i)}", scene.c2w[int(i)], scene.intrinsics_all[int(i)], _TRAIN_COLOUR,
-                          to_uint8(photo[::step, ::step]))
+            self.frustums.append(self._frustum(f"/train/{int(i)}", scene.c2w[int(i)], scene.intrinsics_all[int(i)],
+                                               _TRAIN_COLOUR, to_uint8(photo[::step, ::step])))
 
     def _frustum(self, name: str, c2w, k, colour, image):
         import viser.transforms as vt
 
         return self.server.scene.add_camera_frustum(
-            name, fov=2.0 * math.atan(0.5 * k.height / k.fy), aspect=k.width / k.height, scale=self.frustum_scale,
-            color=colour, image=image, wxyz=vt.SO3.from_matrix(c2w[:3, :3]).wxyz, position=c2w[:3, 3])
+            name, fov=_fov(k), aspect=k.width / k.height, scale=self.frustum_scale, thickness=2.0,
+            thickness_units="screen", color=colour, image=image, wxyz=vt.SO3.from_matrix(c2w[:3, :3]).wxyz,
+            position=c2w[:3, 3], visible=self.show_cameras.value)
+
+    def _show_cameras(self) -> None:
+        for handle in self.frustums + self.pseudo:
+            handle.visible = self.show_cameras.value
 
     def _pseudo_frustums(self) -> None:
         """The pseudo views the shown iteration's student was distilled from (none for the teacher)."""

@@ -102,7 +102,7 @@ def test_the_iteration_menu_switches_fields_and_pseudo_views(run):
         np.testing.assert_allclose([h.position for h in viewer.pseudo], expected[:, :3, 3], atol=1e-6)
         tab = _camera(fitted.cameras.c2w[4], 0.8, 16, 16)
         student = viewer.frame(tab, still=True)[0]
-        viewer.set_iteration(0)
+        viewer.iteration_menu.value = "0: teacher"   # as chosen in the panel
         assert viewer.run.iteration == 0 and viewer.pseudo == []
         teacher = viewer.frame(tab, still=True)[0]
         assert not np.array_equal(student, teacher)
@@ -129,7 +129,8 @@ def test_saved_keyframes_replay_as_the_cameras_they_were_taken_from(run, tmp_pat
     replay = read_camera_path(tmp_path / "path.json", frames=2)
     np.testing.assert_allclose(replay.c2w, fitted.cameras.c2w[:2], atol=1e-9)
     # 2^2 x 256 pixels at 4:1 -> 64 x 16, the first keyframe's size, for both; each keeps its vertical fov
-    np.testing.assert_allclose([_params(k) for k in replay.intrinsics], [(16, 16, 32, 8, 64, 16), (32, 32, 32, 8, 64, 16)])
+    np.testing.assert_allclose([_params(k) for k in replay.intrinsics],
+                               [(16, 16, 32, 8, 64, 16), (32, 32, 32, 8, 64, 16)])
 
 
 def test_a_busy_port_is_one_line_naming_it_and_the_flag(run, capsys):
@@ -154,7 +155,7 @@ def _screenshot(url: str, ready, folder: Path, timeout: float = 60.0) -> np.ndar
     from PIL import Image
     from websockets.sync.client import connect
 
-    browser = subprocess.Popen([_CHROMIUM, "--headless", "--no-sandbox", "--hide-scrollbars", "--window-size=800,600",
+    browser = subprocess.Popen([_CHROMIUM, "--headless", "--no-sandbox", "--hide-scrollbars", "--window-size=800,900",
                                 "--remote-debugging-port=0", f"--user-data-dir={folder}", url],
                                stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     start, page = time.monotonic(), None
@@ -185,6 +186,8 @@ def test_a_browser_shows_the_rendered_scene_at_the_camera_the_server_set(run, tm
 
     fitted = senerf.load_run(run)
     viewer = Viewer(fitted, ViewSettings(scale=4.0), port=0)
+    viewer.show_cameras.value = False   # the panel's checkbox: no frustum drawn over the scene
+    assert not any(h.visible for h in viewer.frustums + viewer.pseudo)
     shown, frame = [], viewer.frame   # a spy on the frames the viewer renders: (still, when)
 
     def spy(client, still):
@@ -200,11 +203,12 @@ def test_a_browser_shows_the_rendered_scene_at_the_camera_the_server_set(run, tm
     height, width = seen.shape[:2]
     # the first test view, at the still frame's size for this canvas (4^2 x 16 x 16 pixels)
     w, h = frame_size(width / height, 4096)
-    c2w, k = fitted.cameras.c2w[fitted.cameras.test[0]], fitted.cameras.intrinsics[0]
+    view = fitted.cameras.test[0]
+    c2w, k = fitted.cameras.c2w[view], fitted.cameras.intrinsics[view]
     f = h / 2 / (k.height / 2 / k.fy)
     expected = fitted.render(c2w, Intrinsics(f, f, w / 2, h / 2, w, h))["rgb"][0]
     small = np.asarray(Image.fromarray(seen).resize((w, h), Image.BOX), np.float64) / 255   # the frame's pixels
-    region = (slice(int(np.ceil(h * 240 / height)), h), slice(int(np.ceil(w * 70 / width)), w))   # below the panel
+    region = (slice(int(np.ceil(h * 280 / height)), h), slice(int(np.ceil(w * 70 / width)), w))   # below the panel
     assert small[region].std() > 0.05, "the browser shows a blank image"
     np.testing.assert_allclose(small[region], expected[region], atol=0.05)
     assert np.abs(small[region] - expected[region]).mean() < 0.01
