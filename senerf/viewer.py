@@ -16,6 +16,7 @@ from __future__ import annotations
 import argparse
 import errno
 import math
+import shlex
 import socket
 import sys
 import threading
@@ -35,7 +36,6 @@ __all__ = ["ViewSettings", "camera_from_viser", "frame_size", "render_frame", "V
 
 PROG = "senerf-view"
 _TRAIN_COLOUR, _PSEUDO_COLOUR = (40, 90, 220), (255, 140, 0)
-_FRUSTUM_PIXELS = 160   # the longest side of a frustum's photo (larger photos are subsampled)
 
 
 @dataclass(frozen=True)
@@ -109,9 +109,9 @@ def _look_distance(scene, c2w: np.ndarray) -> float:
         return spiral_focus_depth(scene.near, scene.far)
     try:
         depth = float((closest_point_to_axes(scene.c2w) - c2w[:3, 3]) @ c2w[:3, 2])
-    except ValueError:   # parallel axes
+    except ValueError:   # parallel axes: no such point
         depth = 0.0
-    return depth if depth > 0 else float(np.linalg.norm(scene.c2w[:, :3, 3] - c2w[:3, 3], axis=-1).max() or 1.0)
+    return depth if depth > 0 else 1.0
 
 
 class _Client:
@@ -122,8 +122,7 @@ class _Client:
         self.viewer, self.client = viewer, client
         self.wake, self.closed, self.still_due = threading.Event(), False, False
         client.camera.on_update(lambda camera: self.wake.set())
-        self.thread = threading.Thread(target=self._loop, name=f"{PROG}-client-{client.client_id}", daemon=True)
-        self.thread.start()
+        threading.Thread(target=self._loop, name=f"{PROG}-tab-{client.client_id}", daemon=True).start()
 
     def _loop(self) -> None:
         while not self.closed:
@@ -201,14 +200,17 @@ class Viewer:
             else 0.1 * look   # small beside the cameras' spacing: a forward-facing capture's are close together
         self.frustums = []
         for i in run.train_idx:
-            photo = scene.rgb[int(i)]
-            step = max(1, -(-max(photo.shape[:2]) // _FRUSTUM_PIXELS))
             self.frustums.append(self._frustum(f"/train/{int(i)}", scene.c2w[int(i)], scene.intrinsics_all[int(i)],
-                                               _TRAIN_COLOUR, to_uint8(photo[::step, ::step])))
+                                               _TRAIN_COLOUR, to_uint8(scene.rgb[int(i)])))
 
     def _frustum(self, name: str, c2w, k, colour, image):
+        """A frustum of the camera ``c2w`` with intrinsics ``k``, its ``image (H, W, 3)`` uint8 (or None)
+        subsampled to at most 160 pixels a side."""
         import viser.transforms as vt
 
+        if image is not None:
+            step = max(1, -(-max(image.shape[:2]) // 160))
+            image = image[::step, ::step]
         return self.server.scene.add_camera_frustum(
             name, fov=_fov(k), aspect=k.width / k.height, scale=self.frustum_scale, thickness=2.0,
             thickness_units="screen", color=colour, image=image, wxyz=vt.SO3.from_matrix(c2w[:3, :3]).wxyz,
@@ -301,12 +303,13 @@ class Viewer:
         except OSError as exc:
             client.add_notification("Camera path not saved", f"{path}: {exc.strerror or exc}", color="red")
             return None
-        command = f"senerf-render {self.run.folder} --path {path}"
+        command = shlex.join(["senerf-render", str(self.run.folder), "--path", str(path)])
         print(f"{PROG}: {len(ks)} keyframes saved to {path}; replay them with: {command}", flush=True)
         client.add_notification("Camera path saved", command, auto_close_seconds=10)
         return path
 
     def stop(self) -> None:
+        """Stop the render threads and the server."""
         for tab in list(self.clients.values()):
             tab.closed = True
             tab.wake.set()
@@ -321,10 +324,8 @@ def _check_port(host: str, port: int) -> None:
         try:
             sock.bind((host, port))
         except OSError as exc:
-            if exc.errno == errno.EADDRINUSE:
-                raise InputError(f"port {port} is in use on {host}; choose another with --port", field="--port") \
-                    from None
-            raise InputError(f"cannot listen on {host}:{port} ({exc.strerror or exc})", field="--host") from None
+            raise InputError(f"cannot listen on {host}:{port} ({exc.strerror or exc}); choose another with --port"
+                             f"{' or --host' if exc.errno != errno.EADDRINUSE else ''}", field="--port") from None
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -353,6 +354,9 @@ def _run(args) -> int:
     set_threads(args.threads)
     _check_port(args.host, args.port)   # before the run is loaded
     run = load_run(args.run, args.iteration, device)
+    from senerf.fields.ckernel import warn_without_kernel
+
+    warn_without_kernel(run.model, device)   # the pure-PyTorch twin renders several times slower
     viewer = Viewer(run, ViewSettings(args.scale, args.moving_scale), args.host, args.port)
     try:
         print(f"{PROG}: {run.scene.name}, iteration {run.iteration} of {list(run.finished)}: open {viewer.address} "

@@ -140,7 +140,8 @@ def test_a_busy_port_is_one_line_naming_it_and_the_flag(run, capsys):
         port = sock.getsockname()[1]
         assert main([str(run), "--port", str(port)]) == 2
     err = capsys.readouterr().err.strip().splitlines()
-    assert err == [f"senerf-view: error: --port: port {port} is in use on 127.0.0.1; choose another with --port"]
+    assert err == [f"senerf-view: error: --port: cannot listen on 127.0.0.1:{port} (Address already in use); choose "
+                   "another with --port"]
 
 
 def _screenshot(url: str, ready, folder: Path, timeout: float = 60.0) -> np.ndarray:
