@@ -196,7 +196,7 @@ class Viewer:
         initial.up, initial.fov = -self.start[:3, 1], self.start_fov
         centres = scene.c2w[:, :3, 3]
         gaps = np.linalg.norm(centres[:, None] - centres[None], axis=-1) + np.diag(np.full(len(centres), np.inf))
-        self.frustum_scale = min(0.1 * look, 0.5 * float(np.median(gaps.min(axis=1)))) if len(centres) > 1 \
+        self.frustum_scale = min(0.1 * look, float(np.median(gaps.min(axis=1)))) if len(centres) > 1 \
             else 0.1 * look   # small beside the cameras' spacing: a forward-facing capture's are close together
         self.frustums = []
         for i in run.train_idx:

@@ -90,7 +90,7 @@ def test_the_viewers_frame_is_the_runs_render_of_the_same_camera(run):
     np.testing.assert_array_equal(depth, depth_to_color(expected["z_depth"][0], expected["acc"][0], background=1.0))
 
 
-def test_the_iteration_menu_switches_fields_and_pseudo_views(run):
+def test_the_iteration_and_show_menus_switch_the_field_its_pseudo_views_and_the_colouring(run):
     from senerf.config import SelfTrainConfig
     from senerf.selftrain import sample_pseudo_cameras
 
@@ -106,7 +106,11 @@ def test_the_iteration_menu_switches_fields_and_pseudo_views(run):
         assert viewer.run.iteration == 0 and viewer.pseudo == []
         teacher = viewer.frame(tab, still=True)[0]
         assert not np.array_equal(student, teacher)
-        np.testing.assert_array_equal(teacher, render_frame(senerf.load_run(run, 0), *viewer.camera(tab, True))[0])
+        teacher_run = senerf.load_run(run, 0)
+        np.testing.assert_array_equal(teacher, render_frame(teacher_run, *viewer.camera(tab, True))[0])
+        viewer.show_mode.value = "depth"   # the panel's RGB / depth menu
+        np.testing.assert_array_equal(viewer.frame(tab, still=False)[0],
+                                      render_frame(teacher_run, *viewer.camera(tab, False), show="depth")[0])
     finally:
         viewer.stop()
 
