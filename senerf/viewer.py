@@ -1,11 +1,11 @@
 """``senerf-view``: a finished ``senerf-fit`` run, live in the browser (a `viser <https://viser.studio>`_ server).
 
-Each browser tab gets its own render thread: while the camera moves it shows frames of ``moving_scale`` times the
-still frame's sides; once no camera message has come for ``still_after`` seconds it renders the still frame (the
-fit's pixel count times ``scale**2``, shaped to the tab's aspect).  The panel chooses the iteration (the teacher or
-a student), RGB or depth, and collects keyframes into a camera path file that ``senerf-render --path`` replays.
-The training cameras are drawn as frustums with their photos, the pseudo views of the shown iteration as orange
-frustums with their reliability masks (``iter_K/pseudo/mask_XXX.png``, when the run wrote them).
+Each browser tab has a render thread: moving frames (``moving_scale`` times the still frame's sides) while its
+camera moves, the still frame (the fit's pixel count times ``scale**2``, at the tab's aspect) once no camera message
+has come for ``still_after`` seconds.  The panel picks the iteration (the teacher or a student) and RGB or depth,
+shows or hides the training cameras (frustums with their photos) and the shown iteration's pseudo views (orange,
+with their reliability masks ``iter_K/pseudo/mask_XXX.png``), and saves keyframes that ``senerf-render --path``
+replays.
 
 Convention: viser's camera is camera-to-world with OpenCV axes (+z forward, +y down) and a vertical field of view,
 so it is the scene's c2w as it is (:func:`camera_from_viser`); the viewer's world frame is the scene's.
@@ -63,14 +63,12 @@ def camera_from_viser(wxyz, position, fov: float, width: int, height: int):
         position: ``(3,)`` the camera centre in the world.
         fov: the vertical field of view in radians.
     """
+    import viser.transforms as vt
+
     from senerf.geometry import Intrinsics
 
-    w, x, y, z = np.asarray(wxyz, dtype=np.float64) / np.linalg.norm(wxyz)
     c2w = np.eye(4)
-    c2w[:3, :3] = [[1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-                   [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-                   [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]]
-    c2w[:3, 3] = position
+    c2w[:3, :3], c2w[:3, 3] = vt.SO3(np.asarray(wxyz, dtype=np.float64)).normalize().as_matrix(), position
     f = 0.5 * height / math.tan(0.5 * fov)
     return c2w, Intrinsics(f, f, width / 2.0, height / 2.0, int(width), int(height))
 
@@ -222,6 +220,8 @@ class Viewer:
 
     def _pseudo_frustums(self) -> None:
         """The pseudo views the shown iteration's student was distilled from (none for the teacher)."""
+        import imageio.v3 as iio
+
         from senerf.config import SelfTrainConfig
         from senerf.runfolder import read_run
         from senerf.selftrain import sample_pseudo_cameras
@@ -236,11 +236,7 @@ class Viewer:
         c2w, ks = sample_pseudo_cameras(run.scene, run.train_idx, cfg, run.iteration)
         for j, (pose, k) in enumerate(zip(c2w, ks)):
             mask = Path(run.folder) / f"iter_{run.iteration}" / "pseudo" / f"mask_{j:03d}.png"
-            image = None
-            if mask.is_file():
-                import imageio.v3 as iio
-
-                image = np.asarray(iio.imread(mask))[..., :3]
+            image = np.asarray(iio.imread(mask))[..., :3] if mask.is_file() else None
             self.pseudo.append(self._frustum(f"/pseudo/{j}", pose, k, _PSEUDO_COLOUR, image))
 
     def _connect(self, client) -> None:

@@ -62,11 +62,9 @@ def test_a_viser_camera_is_the_opencv_pose_with_the_intrinsics_of_its_vertical_f
                                fov=2 * math.atan(0.5), width=40, height=20)
     np.testing.assert_allclose(c2w, [[0, 0, 1, 1], [0, 1, 0, 2], [-1, 0, 0, 3], [0, 0, 0, 1]], atol=1e-12)
     np.testing.assert_allclose(_params(k), (20.0, 20.0, 20.0, 10.0, 40, 20))   # f = (H / 2) / tan(fov / 2) = 10 / 0.5
-    # viser's own reading of the quaternion is the same rotation
-    import viser.transforms as vt
-
-    np.testing.assert_allclose(vt.SO3(np.array([0.5, 0.5, 0.5, 0.5])).as_matrix(),
-                               camera_from_viser((0.5, 0.5, 0.5, 0.5), (0, 0, 0), 1.0, 8, 8)[0][:3, :3], atol=1e-12)
+    # a third of a turn about (1, 1, 1), given unnormalised: x -> y -> z -> x
+    np.testing.assert_allclose(camera_from_viser((2.0, 2.0, 2.0, 2.0), (0, 0, 0), 1.0, 8, 8)[0][:3, :3],
+                               [[0, 0, 1], [1, 0, 0], [0, 1, 0]], atol=1e-12)
 
 
 def test_frame_size_keeps_the_pixel_budget_and_the_aspect():
