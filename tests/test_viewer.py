@@ -158,8 +158,8 @@ def _screenshot(url: str, ready, folder: Path, timeout: float = 60.0) -> np.ndar
     from PIL import Image
     from websockets.sync.client import connect
 
-    browser = subprocess.Popen([_CHROMIUM, "--headless", "--no-sandbox", "--hide-scrollbars", "--window-size=800,900",
-                                "--remote-debugging-port=0", f"--user-data-dir={folder}", url],
+    browser = subprocess.Popen([_CHROMIUM, "--headless", "--no-sandbox", "--disable-dev-shm-usage", "--hide-scrollbars",
+                                "--window-size=800,900", "--remote-debugging-port=0", f"--user-data-dir={folder}", url],
                                stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     start, page = time.monotonic(), None
     try:
