@@ -99,11 +99,33 @@ def _protocol_block(protocol: str, lines: list[dict], aggs: list[Aggregate]) -> 
     selftrain = [a for a in aggs if a.iterations > 0]
     if selftrain:
         out += ["", "Per self-training iteration (0 = teacher; seconds cumulative):", "", format_table(selftrain, True)]
+    out += _phase_table(lines)
     published = paper_rows(proto.family)
     if published:
         out += ["", "Published figures for this protocol:", ""]
         out += [f"- {r.scene}: {_paper_text(r)} at {r.resolution}" for r in published]
     return out + [""]
+
+
+def _phase_table(lines: list[dict]) -> list[str]:
+    """Markdown rows: each (scene, method, preset)'s seconds per phase of a whole run (summed over its iterations),
+    mean over its runs; nothing when no line records its phases."""
+    from senerf.train.record import PHASES
+
+    runs: dict = {}
+    for r in lines:
+        if isinstance(r.get("phases"), dict):
+            run = runs.setdefault((r["scene"], r["method"], r["preset"]), {}).setdefault(r["run_key"], {})
+            for name in PHASES:
+                run[name] = run.get(name, 0.0) + float(r["phases"].get(name, 0.0))
+    if not runs:
+        return []
+    out = ["", "Seconds per phase of a whole run (mean over its runs):", "",
+           "| scene | method | preset | runs | " + " | ".join(PHASES) + " |", "|" + "---|" * (4 + len(PHASES))]
+    for (scene, method, preset), by_run in sorted(runs.items()):
+        means = [sum(run[name] for run in by_run.values()) / len(by_run) for name in PHASES]
+        out.append(f"| {scene} | {method} | {preset} | {len(by_run)} | " + " | ".join(f"{m:.1f}" for m in means) + " |")
+    return out
 
 
 def _paper_text(r: PaperRow) -> str:

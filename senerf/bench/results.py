@@ -12,6 +12,7 @@ results line.  A run is finished when the file holds an ``"ok"`` line with its k
 ``psnr`` ``ssim``   floats (test-set means, dB and [-1, 1])
 ``lpips`` ``avg``   float, or ``"unavailable"`` (no LPIPS weights); ``reliable_fraction``: float or None
 ``seconds``         this iteration's seconds; ``seconds_cumulative``: sum over iterations 0..this one
+``phases``          this iteration's seconds per phase (metrics.json's ``phases``; None from older fits)
 ``run_seconds``     wall clock of the whole ``senerf-fit`` process (start-up and I/O included)
 ``peak_memory_mib`` max RSS of the ``senerf-fit`` process, MiB (None: not measured)
 ``per_view``        {"psnr": [...], "ssim": [...]} per test view
@@ -66,7 +67,8 @@ def result_lines(spec: RunSpec, outcome: dict, commit: str, bench_command: list[
         lines.append({**common, "iteration": it["iteration"], "psnr": float(it["psnr"]), "ssim": float(it["ssim"]),
                       **{m: float(it[m]) if is_number(it.get(m)) else "unavailable" for m in ("lpips", "avg")},
                       "reliable_fraction": it.get("reliable_fraction"), "seconds": float(it["seconds"]),
-                      "seconds_cumulative": round(cumulative, 3), "per_view": it.get("per_view"),
+                      "seconds_cumulative": round(cumulative, 3), "phases": it.get("phases"),
+                      "per_view": it.get("per_view"),
                       "host": it.get("host")})
     return lines
 

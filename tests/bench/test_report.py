@@ -75,3 +75,16 @@ def test_report_of_the_committed_lego_results(ok_line):
     for needle in ("### synthetic-extreme3@100", "Does each slower preset buy PSNR?", "Ablations and analyses",
                    "K-Planes (paper): 14.67 / 0.68 / 0.31"):
         assert needle in text, needle
+
+
+def test_report_sums_each_runs_phases_over_its_iterations_and_averages_the_runs(ok_line):
+    phases = lambda train, render: dict(train=train, pseudo_render=render, features=0.0, reliability=0.0,   # noqa: E731
+                                        evaluation=1.0)
+    lines = [ok_line(run_key="s0", method="senerf", iterations=1, iteration=0, phases=phases(10.0, 0.0)),
+             ok_line(run_key="s0", method="senerf", iterations=1, iteration=1, phases=phases(20.0, 4.0)),
+             ok_line(run_key="s1", method="senerf", iterations=1, iteration=0, seed=1, phases=phases(12.0, 0.0)),
+             ok_line(run_key="s1", method="senerf", iterations=1, iteration=1, seed=1, phases=phases(22.0, 6.0)),
+             ok_line(run_key="old")]   # a line from before phases were recorded
+    text = make_report(lines, ["senerf-bench", "report"])
+    assert "| lego | senerf | fast | 2 | 32.0 | 5.0 | 0.0 | 0.0 | 2.0 |" in text
+    assert "| lego | baseline |" not in text.split("Seconds per phase")[1]
