@@ -112,7 +112,7 @@ def colour_mesh(run, mesh) -> None:
     normal, the direction a camera in front of the surface looks at it."""
     normals = np.asarray(mesh.vertex_normals, dtype=np.float64)
     rgb = run.color(np.asarray(mesh.vertices), -normals)
-    mesh.visual.vertex_colors = np.concatenate([np.round(rgb * 255), np.full((len(rgb), 1), 255)], 1).astype(np.uint8)
+    mesh.visual.vertex_colors = rgb   # trimesh rounds [0, 1] floats to uint8 RGBA
 
 
 def _render(run, c2w, intrinsics, progress: bool, desc: str) -> list:
@@ -241,8 +241,8 @@ def build_parser() -> OneLineParser:
     p.add_argument("--mesh", type=Path, help="write a coloured mesh: .ply, .obj or .glb")
     p.add_argument("--points", type=Path, help="write a fused, coloured point cloud: .ply")
     p.add_argument("--depth", type=Path, metavar="DIR", help="write 16-bit depth PNGs and depth_scale.json here")
-    p.add_argument("--resolution", type=int_flag("--resolution", minimum=8, maximum=1024), default=RESOLUTION,
-                   help=f"marching-cubes grid side, 8 to 1024 (default {RESOLUTION})")
+    p.add_argument("--resolution", type=int_flag("--resolution", minimum=8, maximum=512), default=RESOLUTION,
+                   help=f"marching-cubes grid side, 8 to 512 (default {RESOLUTION})")
     p.add_argument("--level", type=float_flag("--level", positive=True), default=None,
                    help="density of the surface (default: where one render sample interval is half opaque, "
                         "ln 2 x samples / mean box side)")
@@ -299,13 +299,11 @@ def _run(args) -> int:
         c2w = np.concatenate([cams.c2w[run.train_idx], pc2w])
         intr = tuple(cams.intrinsics[int(i)] for i in run.train_idx) + tuple(pk)
         xyz, rgb = fused_points(c2w, intr, _render(run, c2w, intr, progress, "points: render"))
-        colours = np.concatenate([np.round(rgb * 255), np.full((len(rgb), 1), 255)], 1).astype(np.uint8)
-        _write_file(args.points, trimesh.PointCloud(xyz, colors=colours))
+        _write_file(args.points, trimesh.PointCloud(xyz, colors=rgb))
         print(f"{PROG}: {said}: {len(xyz)} points from {len(c2w)} views ({len(pc2w)} pseudo) in {args.points}")
     if args.depth is not None:
         cams = run.cameras
-        views = dict(train=run.train_idx, test=run.test_idx,
-                     all=np.arange(len(cams.c2w)))[args.views]
+        views = dict(train=run.train_idx, test=run.test_idx, all=np.arange(len(cams.c2w)))[args.views]
         intr = tuple(cams.intrinsics[int(i)] for i in views)
         renders = _render(run, cams.c2w[views], intr, progress, "depth: render")
         record = dict(senerf_export=__version__, run=os.path.abspath(run.folder), iteration=run.iteration)
