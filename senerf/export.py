@@ -24,6 +24,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
+from tqdm.auto import tqdm
 
 from senerf import __version__
 from senerf.cliargs import (THREADS_HELP, OneLineParser, check_device, float_flag, int_flag, run_command, set_threads,
@@ -70,12 +71,7 @@ def density_grid(density, lo, hi, resolution: int, chunk: int = 1 << 18, progres
     out = np.empty((n, n, n), np.float32)
     yz = np.stack(np.meshgrid(axes[1], axes[2], indexing="ij"), axis=-1)   # (N, N, 2)
     step = max(1, chunk // (n * n))
-    slabs = range(0, n, step)
-    if progress:
-        from tqdm.auto import tqdm
-
-        slabs = tqdm(slabs, desc="density grid", unit="slab")
-    for s in slabs:
+    for s in tqdm(range(0, n, step), desc="density grid", unit="slab", disable=not progress):
         xs = axes[0][s:s + step]
         pts = np.concatenate([np.broadcast_to(xs[:, None, None, None], (len(xs), n, n, 1)),
                               np.broadcast_to(yz, (len(xs), n, n, 2))], axis=-1)
@@ -97,7 +93,7 @@ def grid_mesh(grid: np.ndarray, lo, hi, level: float, components: str = "all"):
     lo, hi = np.asarray(lo, np.float64), np.asarray(hi, np.float64)
     if not grid.min() < level < grid.max():
         raise InputError(f"the density ({grid.min():.3g} to {grid.max():.3g} in the box) never crosses {level:g}; "
-                         "no surface there", field="--level")
+                         "give a --level between those", field="--level")
     spacing = (hi - lo) / (np.asarray(grid.shape) - 1)
     verts, faces, normals, _ = marching_cubes(grid, level, spacing=tuple(spacing))
     mesh = trimesh.Trimesh(verts + lo, faces[:, ::-1], vertex_normals=normals, process=False)
@@ -118,13 +114,8 @@ def colour_mesh(run, mesh) -> None:
 def _render(run, c2w, intrinsics, progress: bool, desc: str) -> list:
     """One :meth:`FittedRun.render` per camera (their intrinsics may differ in size): a list of dicts of
     ``rgb (H, W, 3)``, ``z_depth (H, W)`` (0 where the opacity is <= :data:`OPACITY`)."""
-    views = range(len(c2w))
-    if progress:
-        from tqdm.auto import tqdm
-
-        views = tqdm(views, desc=desc, unit="view")
     out = []
-    for i in views:
+    for i in tqdm(range(len(c2w)), desc=desc, unit="view", disable=not progress):
         r = run.render(c2w[i], intrinsics[i])
         out.append(dict(rgb=r["rgb"][0], z_depth=np.where(r["acc"][0] > OPACITY, r["z_depth"][0], 0.0)))
     return out
