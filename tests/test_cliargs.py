@@ -270,11 +270,12 @@ def test_the_console_scripts_call_console_entry():
 
     scripts = tomllib.loads((Path(__file__).resolve().parents[1] / "pyproject.toml").read_text())["project"]["scripts"]
     assert scripts == {"senerf-fit": "senerf.cli:console", "senerf-bench": "senerf.bench.cli:console",
-                       "senerf-render": "senerf.flythrough:console", "senerf-view": "senerf.viewer:console"}
-    for module in ("senerf.cli", "senerf.flythrough", "senerf.viewer"):   # python -m: the same exit
+                       "senerf-render": "senerf.flythrough:console", "senerf-view": "senerf.viewer:console",
+                       "senerf-export": "senerf.export:console"}
+    for module in ("senerf.cli", "senerf.flythrough", "senerf.viewer", "senerf.export"):   # python -m: the same exit
         proc = subprocess.run([sys.executable, "-m", module, "--version"], capture_output=True, text=True,
                               timeout=120)
-        assert proc.returncode == 0 and proc.stdout.startswith(("senerf-fit ", "senerf-render ", "senerf-view ")), \
-            proc.stderr
+        assert proc.returncode == 0 and proc.stdout.startswith(
+            ("senerf-fit ", "senerf-render ", "senerf-view ", "senerf-export ")), proc.stderr
     proc = subprocess.run([sys.executable, "-m", "senerf.bench"], capture_output=True, text=True, timeout=120)
     assert proc.returncode == 2 and "the following arguments are required: command" in proc.stderr
