@@ -1,16 +1,55 @@
 """Atomic file writes (no torch): a temporary file in the same folder, flushed and fsynced, then renamed
-over the target, so a crash leaves the old file or the new one, never half of one; and the check the commands
-make of an output folder before writing anything there (:func:`output_folder`)."""
+over the target, so a crash leaves the old file or the new one, never half of one; whole output folders the same
+way (:func:`replace_folder`); and the check the commands make of an output folder before writing anything there
+(:func:`output_folder`)."""
 
 from __future__ import annotations
 
 import os
 import secrets
+import shutil
 from pathlib import Path
 
 from senerf.errors import InputError
 
-__all__ = ["atomic_write", "atomic_write_bytes", "atomic_write_text", "output_folder"]
+__all__ = ["atomic_write", "atomic_write_bytes", "atomic_write_text", "output_folder", "partial_folder",
+           "replace_folder"]
+
+
+def partial_folder(out: Path) -> Path:
+    """The hidden sibling ``.<name>.partial`` of ``out`` that :func:`replace_folder` writes into (what a killed
+    write leaves; the next write there removes it)."""
+    return out.with_name(f".{out.name}.partial")
+
+
+def replace_folder(out, fill) -> Path:
+    """Write the folder ``out`` whole or not at all: ``fill(folder)`` writes into ``.<name>.partial/new`` beside it,
+    which then takes ``out``'s place; an earlier ``out`` is moved aside first (and back, if the new one cannot take
+    its place) and removed.
+
+    Raises:
+        InputError: a write or rename failed (a full disk, a mount point), naming ``out``.
+    """
+    out = Path(out)
+    new, old = partial_folder(out) / "new", partial_folder(out) / "old"
+    shutil.rmtree(partial_folder(out), ignore_errors=True)
+    try:
+        new.mkdir(parents=True)
+        fill(new)
+        if os.path.lexists(out):
+            out.rename(old)
+            try:
+                new.rename(out)
+            except BaseException:   # an interrupt or a failure between the renames: the earlier output goes back
+                old.rename(out)
+                raise
+        else:
+            new.rename(out)
+    except OSError as exc:
+        raise InputError(f"cannot write there ({exc.strerror or exc})", file=out) from None
+    finally:
+        shutil.rmtree(partial_folder(out), ignore_errors=True)
+    return out
 
 
 def output_folder(path, flag: str) -> Path:

@@ -19,7 +19,6 @@ from __future__ import annotations
 import json
 import math
 import os
-import shutil
 import sys
 from pathlib import Path
 
@@ -29,6 +28,7 @@ from tqdm.auto import tqdm
 from senerf import __version__
 from senerf.cliargs import (THREADS_HELP, OneLineParser, check_device, float_flag, int_flag, run_command, set_threads,
                             short_openmp_waits, threads_flag)
+from senerf.atomic import replace_folder
 from senerf.errors import InputError
 
 __all__ = ["mesh_region", "default_level", "density_grid", "grid_mesh", "colour_mesh", "fused_points",
@@ -201,21 +201,6 @@ def _check_dir(path: Path | None, overwrite: bool) -> None:
                          "choose another --depth", file=path)
 
 
-def _write_folder(out: Path, fill) -> None:
-    """``fill(folder)`` into a hidden sibling of ``out``, then swap it into place (an earlier one removed)."""
-    tmp, old = out.with_name(f".{out.name}.partial"), out.with_name(f".{out.name}.old")
-    shutil.rmtree(tmp, ignore_errors=True)
-    tmp.mkdir(parents=True)
-    try:
-        fill(tmp)
-        if os.path.lexists(out):
-            out.rename(old)
-        tmp.rename(out)
-    finally:
-        shutil.rmtree(tmp, ignore_errors=True)
-        shutil.rmtree(old, ignore_errors=True)
-
-
 def _write_file(path: Path, geometry) -> None:
     """Export a trimesh ``geometry`` to ``path`` (type from its suffix), atomically."""
     from senerf.atomic import atomic_write
@@ -298,7 +283,7 @@ def _run(args) -> int:
         intr = tuple(cams.intrinsics[int(i)] for i in views)
         renders = _render(run, cams.c2w[views], intr, progress, "depth: render")
         record = dict(senerf_export=__version__, run=os.path.abspath(run.folder), iteration=run.iteration)
-        _write_folder(args.depth, lambda tmp: write_depth_maps(tmp, renders, views, cams.c2w[views], intr, record))
+        replace_folder(args.depth, lambda tmp: write_depth_maps(tmp, renders, views, cams.c2w[views], intr, record))
         print(f"{PROG}: {said}: {len(views)} depth maps in {args.depth}")
     return 0
 

@@ -165,18 +165,13 @@ def _is_output(folder: Path) -> bool:
     return isinstance(record, dict) and "senerf_render" in record
 
 
-def _partial(out: Path) -> Path:
-    """The hidden sibling of ``out`` a render is written into (module Convention)."""
-    return out.with_name(f".{out.name}.partial")
-
-
 def _check_out(out: Path, overwrite: bool) -> None:
     """Remove what a killed render into ``out`` left, then refuse an ``out`` that cannot take the output: not a
     folder, or existing without ``overwrite``, or with ``overwrite`` a folder that is neither empty nor an earlier
     senerf-render output (nothing else is ever removed)."""
-    from senerf.atomic import output_folder
+    from senerf.atomic import output_folder, partial_folder
 
-    partial = _partial(out)
+    partial = partial_folder(out)
     if partial.is_dir():
         shutil.rmtree(partial)
         print(f"{PROG}: removed {partial}, left by an interrupted render")
@@ -233,13 +228,13 @@ def write_output(out: Path, frames: dict, record: dict, fps: float, overwrite: b
     """
     import imageio.v3 as iio
 
+    from senerf.atomic import replace_folder
     from senerf.train import write_png
 
     out = Path(out)
     _check_out(out, overwrite)
-    new, old = _partial(out) / "new", _partial(out) / "old"
-    try:
-        new.mkdir(parents=True)
+
+    def fill(new: Path) -> None:
         stacks = dict(rgb=frames["rgb"], depth=frames["depth"], **({} if compare is None else dict(compare=compare)))
         for name, stack in stacks.items():
             if fmt == "png":
@@ -250,20 +245,8 @@ def write_output(out: Path, frames: dict, record: dict, fps: float, overwrite: b
             else:
                 write_mp4(new / f"{name}.mp4", stack, fps)
         (new / _RECORD).write_text(json.dumps(record, indent=1))
-        if os.path.lexists(out):
-            out.rename(old)
-            try:
-                new.rename(out)
-            except BaseException:   # an interrupt or a failure between the renames: the earlier output goes back
-                old.rename(out)
-                raise
-        else:
-            new.rename(out)
-    except OSError as exc:   # a full disk, a folder that cannot be renamed (a mount point)
-        raise InputError(f"cannot write there ({exc.strerror or exc})", file=out) from None
-    finally:
-        shutil.rmtree(_partial(out), ignore_errors=True)
-    return out
+
+    return replace_folder(out, fill)
 
 
 def _check_memory(intrinsics, renders: int) -> None:
