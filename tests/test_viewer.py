@@ -6,6 +6,7 @@ test drives headless Chromium (Debian's ``chromium`` package) and skips where no
 
 from __future__ import annotations
 
+import json
 import math
 import shutil
 import socket
@@ -133,6 +134,14 @@ def test_saved_keyframes_replay_as_the_cameras_they_were_taken_from(run, tmp_pat
     # 2^2 x 256 pixels at 4:1 -> 64 x 16, the first keyframe's size, for both; each keeps its vertical fov
     np.testing.assert_allclose([_params(k) for k in replay.intrinsics],
                                [(16, 16, 32, 8, 64, 16), (32, 32, 32, 8, 64, 16)])
+    from senerf.flythrough import main as render_main   # and senerf-render replays the file through them
+
+    out = tmp_path / "replayed"
+    assert render_main([str(run), "--path", str(tmp_path / "path.json"), "--format", "png", "--out", str(out),
+                        "--quiet"]) == 0
+    c2w = np.asarray(json.loads((out / "path.json").read_text())["c2w"])   # the file's 60 frames, key to key
+    assert c2w.shape == (60, 4, 4) and len(list(out.glob("rgb_*.png"))) == 60
+    np.testing.assert_allclose(c2w[[0, -1]], fitted.cameras.c2w[:2], atol=1e-9)
 
 
 def test_a_busy_port_is_one_line_naming_it_and_the_flag(run, capsys):
