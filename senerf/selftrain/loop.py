@@ -113,7 +113,11 @@ def run_selftraining(scene, train_idx, test_idx, model: ModelConfig, train_cfg: 
                           occupancy=result.occupancy, device=device, progress=progress)
         reliable = None if labels is None or not labels.foreground.any() else labels.reliable_fraction
         seconds = time.perf_counter() - t0 + result.seconds_before
-        samples = result.steps * train_cfg.batch_rays * model.n_samples
+        # the rays a step trains on: the real views' and, for a student, the pseudo views' (the teacher's forward
+        # queries of the reliable rays are not counted)
+        prior = cfg.batch_prior if cfg.prior and cfg.lambda_prior > 0 else 0
+        step_rays = train_cfg.batch_rays + (cfg.batch_reliable + prior if k else 0)
+        samples = result.steps * step_rays * model.n_samples
         metrics["iterations"].append(iteration_row(k, ev, reliable, seconds, device, phases, samples))
         metrics["seconds_total"] = float(sum(row["seconds"] for row in metrics["iterations"]))
         atomic_write_text(out / METRICS_FILE, json.dumps(metrics, indent=1))

@@ -68,8 +68,8 @@ def iteration_row(iteration: int, ev: dict, reliable_fraction: float | None, sec
     """One row of ``metrics['iterations']`` from :func:`senerf.train.evaluate`'s result ``ev``
     (``reliable_fraction`` None for the teacher, or when the pseudo views held no foreground), with the
     :func:`host_record` of ``device``, the host that finished the iteration, the seconds of each of
-    :data:`PHASES` (``phases``) and the training's steps and samples per second (``train_samples``: the steps'
-    ray samples, ``steps x batch_rays x n_samples``, before empty-space skipping)."""
+    :data:`PHASES` (``phases``) and the training's samples per second (``train_samples``: the ray samples the steps
+    trained on, ``steps x rays x n_samples``, before empty-space skipping)."""
     phases = {name: float((phases or {}).get(name, 0.0)) for name in PHASES}
     per_s = train_samples / phases["train"] if phases["train"] > 0 else 0.0
     return dict(iteration=int(iteration), psnr=ev["psnr"], ssim=ev["ssim"], lpips=ev["lpips"], avg=ev["avg"],

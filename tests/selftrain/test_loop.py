@@ -86,7 +86,9 @@ def test_a_tiny_run_writes_what_the_design_promises(setup, reference):
         assert r["host"]["device"] == "cpu" and r["seconds"] > 0
         assert list(r["phases"]) == list(PHASES) and min(r["phases"].values()) >= 0.0
         assert sum(r["phases"].values()) <= r["seconds"] and r["phases"]["train"] > 0 and r["phases"]["evaluation"] > 0
-        samples = tcfg.steps * tcfg.batch_rays * model.n_samples
+        pseudo = cfg.batch_reliable + (cfg.batch_prior if cfg.prior and cfg.lambda_prior > 0 else 0)
+        pseudo = pseudo if r["iteration"] else 0
+        samples = tcfg.steps * (tcfg.batch_rays + pseudo) * model.n_samples   # a student's pseudo rays count too
         assert r["train_samples_per_s"] == pytest.approx(samples / r["phases"]["train"])
     labelling = ("pseudo_render", "features", "reliability")   # the teacher labels nothing; the student's pseudo views
     assert all(rows[0]["phases"][p] == 0.0 for p in labelling) and all(rows[1]["phases"][p] > 0 for p in labelling)
