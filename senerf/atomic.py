@@ -13,13 +13,33 @@ from pathlib import Path
 from senerf.errors import InputError
 
 __all__ = ["atomic_write", "atomic_write_bytes", "atomic_write_text", "output_folder", "partial_folder",
-           "replace_folder"]
+           "replace_folder", "replaceable_folder"]
 
 
 def partial_folder(out: Path) -> Path:
     """The hidden sibling ``.<name>.partial`` of ``out`` that :func:`replace_folder` writes into (what a killed
     write leaves; the next write there removes it)."""
     return out.with_name(f".{out.name}.partial")
+
+
+def replaceable_folder(out, flag: str, overwrite: bool, ours, what: str) -> bool:
+    """Refuse an ``out`` that :func:`replace_folder` may not write, after removing what a killed write there left
+    (returns whether it did): not a folder, existing without ``overwrite``, or with it a folder that is neither empty
+    nor an earlier output (``ours(out)``; nothing else is ever removed).  ``flag`` and ``what`` (``"a senerf-render
+    output"``) name them in the one-line :class:`InputError`."""
+    out = Path(out)
+    partial = partial_folder(out)
+    left = partial.is_dir()
+    if left:
+        shutil.rmtree(partial)
+    output_folder(out, flag)
+    if not os.path.lexists(out):
+        return left
+    if not overwrite:
+        raise InputError(f"exists; use --overwrite (replaces {what}) or another {flag}", file=out)
+    if out.is_dir() and any(out.iterdir()) and not ours(out):
+        raise InputError(f"is not {what}; --overwrite replaces only those: choose another {flag}", file=out)
+    return left
 
 
 def replace_folder(out, fill) -> Path:

@@ -7,12 +7,11 @@ The exit statuses are :func:`senerf.cliargs.run_command`'s; the flags' defaults 
 from __future__ import annotations
 
 import shlex
-import sys
 from pathlib import Path
 
 from senerf import __version__
-from senerf.cliargs import (SEED_MAX, THREADS_HELP, OneLineParser, argument_type, float_flag, int_flag, run_command,
-                            set_threads, short_openmp_waits, threads_flag)
+from senerf.cliargs import (SEED_MAX, THREADS_HELP, OneLineParser, argument_type, command_main, console_entry,
+                            float_flag, int_flag, set_threads, threads_flag)
 from senerf.config import PRESETS, SelfTrainConfig
 from senerf.errors import InputError
 
@@ -42,11 +41,12 @@ def build_parser() -> OneLineParser:
     g = p.add_argument_group("views")
     g.add_argument("--views", type=argument_type(parse_views),
                    help="training view indices, e.g. 0,1,51 (into the train split of a scene that has one)")
-    g.add_argument("--n-views", type=int_flag("--n-views"), help="number of training views (llff, dtu, spread, random8)")
+    g.add_argument("--n-views", type=int_flag("--n-views"),
+                   help="number of training views (llff, dtu, spread, random8)")
     g.add_argument("--protocol", choices=_PROTOCOLS,
                    help="few-shot protocol (default: extreme for the NeRF Synthetic scenes; spread for other scenes "
-                        "with a test split: 3 views spread over the train split; else llff: every 8th image tests; dtu: DTU's "
-                        "few-shot views 25, 22, 28, ... and its 25 test views)")
+                        "with a test split: 3 views spread over the train split; else llff: every 8th image tests; "
+                        "dtu: DTU's few-shot views 25, 22, 28, ... and its 25 test views)")
     g.add_argument("--test-views", type=int_flag("--test-views"), metavar="N",
                    help="score on N of the test views, spread evenly (default: all, as published tables)")
     g.add_argument("--scene-kind", choices=("unbounded", "object", "forward-facing"),
@@ -141,15 +141,11 @@ def _run(args, argv: list[str]) -> int:
 
 def main(argv: list[str] | None = None) -> int:
     """Entry point of ``senerf-fit``; returns the exit status (0 ok, 2 bad input, 130 interrupted, 1 internal)."""
-    argv = list(sys.argv[1:] if argv is None else argv)
-    short_openmp_waits()   # before torch is imported
-    return run_command(PROG, lambda: _run(build_parser().parse_args(argv), argv), "rerun the same command to resume")
+    return command_main(PROG, lambda a: _run(build_parser().parse_args(a), a), argv, "rerun the same command to resume")
 
 
 def console() -> None:
     """The ``senerf-fit`` console script."""
-    from senerf.cliargs import console_entry
-
     console_entry(main)
 
 

@@ -17,8 +17,8 @@ from typing import NoReturn
 
 from senerf.errors import InputError
 
-__all__ = ["OneLineParser", "console_entry", "argument_type", "int_flag", "float_flag", "check_device", "threads_flag",
-           "set_threads", "short_openmp_waits", "run_command", "SEED_MAX", "THREADS_MAX", "THREADS_HELP",
+__all__ = ["OneLineParser", "console_entry", "command_main", "argument_type", "int_flag", "float_flag", "check_device",
+           "threads_flag", "set_threads", "short_openmp_waits", "run_command", "SEED_MAX", "THREADS_MAX", "THREADS_HELP",
            "OPENMP_SPINS"]
 
 #: Largest seed the commands accept (torch generators take a signed 64-bit seed).
@@ -148,6 +148,14 @@ def console_entry(main) -> NoReturn:
     if threading.current_thread() is threading.main_thread():
         signal.signal(signal.SIGINT, signal.SIG_IGN)
     sys.exit(status)
+
+
+def command_main(prog: str, body, argv: list[str] | None, interrupted: str) -> int:
+    """A command's ``main``: ``body(argv)`` (default ``sys.argv[1:]``) through :func:`run_command`, with OpenMP's
+    short waits set before torch is imported (:func:`short_openmp_waits`)."""
+    argv = list(sys.argv[1:] if argv is None else argv)
+    short_openmp_waits()
+    return run_command(prog, lambda: body(argv), interrupted)
 
 
 def run_command(prog: str, body, interrupted: str) -> int:

@@ -19,15 +19,14 @@ from __future__ import annotations
 import json
 import math
 import os
-import sys
 from pathlib import Path
 
 import numpy as np
 from tqdm.auto import tqdm
 
 from senerf import __version__
-from senerf.cliargs import (THREADS_HELP, OneLineParser, check_device, float_flag, int_flag, run_command, set_threads,
-                            short_openmp_waits, threads_flag)
+from senerf.cliargs import (THREADS_HELP, OneLineParser, check_device, command_main, console_entry, float_flag,
+                            int_flag, set_threads, threads_flag)
 from senerf.atomic import replace_folder
 from senerf.errors import InputError
 
@@ -187,18 +186,12 @@ def _check_file(path: Path | None, flag: str, types: tuple, overwrite: bool) -> 
 
 
 def _check_dir(path: Path | None, overwrite: bool) -> None:
-    """Refuse a ``--depth`` folder that exists without ``overwrite``, or that holds something other than an
-    earlier ``senerf-export`` depth output (nothing else is ever replaced)."""
-    from senerf.atomic import output_folder
+    """:func:`senerf.atomic.replaceable_folder` for ``--depth`` (an earlier depth export may be replaced)."""
+    from senerf.atomic import replaceable_folder
 
-    if path is None:
-        return
-    output_folder(path, "--depth")
-    if os.path.lexists(path) and not overwrite:
-        raise InputError("exists; use --overwrite or another --depth", file=path)
-    if path.is_dir() and any(path.iterdir()) and not (path / _SCALE_FILE).is_file():
-        raise InputError(f"holds no {_SCALE_FILE} of ours; --overwrite replaces only an earlier depth export: "
-                         "choose another --depth", file=path)
+    if path is not None:
+        replaceable_folder(path, "--depth", overwrite, lambda p: (p / _SCALE_FILE).is_file(),
+                           "a senerf-export depth output")
 
 
 def _write_file(path: Path, geometry) -> None:
@@ -290,15 +283,11 @@ def _run(args) -> int:
 
 def main(argv: list[str] | None = None) -> int:
     """Entry point of ``senerf-export``; returns the exit status (0 ok, 2 bad input, 130 interrupted, 1 internal)."""
-    argv = list(sys.argv[1:] if argv is None else argv)
-    short_openmp_waits()   # before torch is imported
-    return run_command(PROG, lambda: _run(build_parser().parse_args(argv)), "no output written")
+    return command_main(PROG, lambda a: _run(build_parser().parse_args(a)), argv, "no output written")
 
 
 def console() -> None:
     """The ``senerf-export`` console script: :func:`main` through :func:`senerf.cliargs.console_entry`."""
-    from senerf.cliargs import console_entry
-
     console_entry(main)
 
 

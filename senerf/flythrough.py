@@ -13,15 +13,13 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import shutil
-import sys
 from pathlib import Path
 
 import numpy as np
 
 from senerf import __version__
-from senerf.cliargs import (THREADS_HELP, OneLineParser, check_device, float_flag, int_flag, run_command, set_threads,
-                            short_openmp_waits, threads_flag)
+from senerf.cliargs import (THREADS_HELP, OneLineParser, check_device, command_main, console_entry, float_flag,
+                            int_flag, set_threads, threads_flag)
 from senerf.errors import InputError
 from senerf.memory import physical_memory_bytes
 from senerf.fitted import FittedRun, load_run, with_iteration
@@ -166,24 +164,11 @@ def _is_output(folder: Path) -> bool:
 
 
 def _check_out(out: Path, overwrite: bool) -> None:
-    """Remove what a killed render into ``out`` left, then refuse an ``out`` that cannot take the output: not a
-    folder, or existing without ``overwrite``, or with ``overwrite`` a folder that is neither empty nor an earlier
-    senerf-render output (nothing else is ever removed)."""
-    from senerf.atomic import output_folder, partial_folder
+    """:func:`senerf.atomic.replaceable_folder` for ``--out`` (an earlier senerf-render output may be replaced)."""
+    from senerf.atomic import partial_folder, replaceable_folder
 
-    partial = partial_folder(out)
-    if partial.is_dir():
-        shutil.rmtree(partial)
-        print(f"{PROG}: removed {partial}, left by an interrupted render")
-    output_folder(out, "--out")
-    if not os.path.lexists(out):
-        return
-    if not overwrite:
-        raise InputError("exists; use --overwrite (replaces an earlier senerf-render output) or another --out",
-                         file=out)
-    if out.is_dir() and any(out.iterdir()) and not _is_output(out):
-        raise InputError(f"is not a senerf-render output (no {_RECORD} of ours); --overwrite replaces only those: "
-                         "choose another --out", file=out)
+    if replaceable_folder(out, "--out", overwrite, _is_output, "a senerf-render output"):
+        print(f"{PROG}: removed {partial_folder(out)}, left by an interrupted render")
 
 
 def write_mp4(path: Path, frames: np.ndarray, fps: float) -> None:
@@ -365,15 +350,11 @@ def _run(args) -> int:
 
 def main(argv: list[str] | None = None) -> int:
     """Entry point of ``senerf-render``; returns the exit status (0 ok, 2 bad input, 130 interrupted, 1 internal)."""
-    argv = list(sys.argv[1:] if argv is None else argv)
-    short_openmp_waits()   # before torch is imported
-    return run_command(PROG, lambda: _run(build_parser().parse_args(argv)), "no output written")
+    return command_main(PROG, lambda a: _run(build_parser().parse_args(a)), argv, "no output written")
 
 
 def console() -> None:
     """The ``senerf-render`` console script: :func:`main` through :func:`senerf.cliargs.console_entry`."""
-    from senerf.cliargs import console_entry
-
     console_entry(main)
 
 

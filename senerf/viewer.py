@@ -28,8 +28,8 @@ from pathlib import Path
 import numpy as np
 
 from senerf import __version__
-from senerf.cliargs import (THREADS_HELP, OneLineParser, check_device, float_flag, int_flag, run_command, set_threads,
-                            short_openmp_waits, threads_flag)
+from senerf.cliargs import (THREADS_HELP, OneLineParser, check_device, command_main, console_entry, float_flag,
+                            int_flag, set_threads, threads_flag)
 from senerf.errors import InputError
 
 __all__ = ["ViewSettings", "camera_from_viser", "frame_size", "render_frame", "Viewer", "main", "console"]
@@ -365,15 +365,11 @@ def _run(args) -> int:
 
 def main(argv: list[str] | None = None) -> int:
     """Entry point of ``senerf-view``; returns the exit status (130 stopped by Ctrl-C, 2 bad input, 1 internal)."""
-    argv = list(sys.argv[1:] if argv is None else argv)
-    short_openmp_waits()   # before torch is imported
-    return run_command(PROG, lambda: _run(build_parser().parse_args(argv)), "viewer stopped")
+    return command_main(PROG, lambda a: _run(build_parser().parse_args(a)), argv, "viewer stopped")
 
 
 def console() -> None:
     """The ``senerf-view`` console script: :func:`main` through :func:`senerf.cliargs.console_entry`."""
-    from senerf.cliargs import console_entry
-
     console_entry(main)
 
 
