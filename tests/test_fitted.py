@@ -34,9 +34,9 @@ def _box_bounds(o: np.ndarray, d: np.ndarray, aabb) -> tuple[np.ndarray, np.ndar
 
 
 def test_render_equals_a_quadrature_of_density_and_color_queries(run):
-    """Volume rendering ``density`` and ``color`` along a camera's rays at the renderer's bin centres (intervals between them, the last ending at the
-    far bound) gives the
-    renderer's colour and opacity: the queries are the field the renders come from, in the world frame."""
+    """Volume rendering ``density`` and ``color`` along a camera's rays at the renderer's bin centres (intervals
+    between them, the last ending at the far bound) gives the renderer's colour and opacity: the queries are the
+    field the renders come from, in the world frame."""
     fitted = senerf.load_run(run)
     c2w = fitted.cameras.c2w[fitted.cameras.test[0]]
     out = fitted.render(c2w, _K)

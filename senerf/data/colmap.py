@@ -13,9 +13,10 @@ size, split as LLFF's (:func:`~senerf.data.llff.llff_splits`).
 
 Kind: **forward-facing** when every camera and ray looks close to the cameras' mean viewing direction
 (:func:`view_spread`), else **unbounded** (a capture around something, background in every photo, kept in
-COLMAP's world frame), or **object** for photos with alpha.  A forward-facing scene is normalised as :func:`load_llff` normalises LLFF (``bd_factor``, ``recenter``); its
-per-image depth bounds are what LLFF's ``imgs2poses`` takes, the 0.1th and 99.9th percentiles of the depths of
-the 3D points each image sees, and it needs one camera (NDC is built from one focal length).
+COLMAP's world frame), or **object** for photos with alpha. A forward-facing scene is normalised as :func:`load_llff`
+normalises LLFF (``bd_factor``, ``recenter``); its per-image depth bounds are what LLFF's ``imgs2poses`` takes, the
+0.1th and 99.9th percentiles of the depths of the 3D points each image sees, and it needs one camera (NDC is built from
+one focal length).
 
 Convention:
     COLMAP stores world-to-camera ``(qvec (w, x, y, z), tvec)`` in the OpenCV camera convention, and puts

@@ -91,7 +91,8 @@ def load_scene(path, downscale: float = 1, background=None, kind: str | None = N
         raise InputError(f"expected one of {', '.join(SCENE_KINDS)}, got {kind!r}", field="kind")
     if kind == "forward_facing" and fmt in ("blender", "ngp"):
         raise InputError(f"a forward-facing (NDC) fit needs the depth bounds only LLFF and COLMAP captures give; "
-                         f"this is {'an instant-ngp' if fmt == 'ngp' else 'a Blender'} scene: fit it as unbounded or object", file=root, field="kind")
+                         f"this is {'an instant-ngp' if fmt == 'ngp' else 'a Blender'} scene: fit it as unbounded or "
+                         "object", file=root, field="kind")
     loaders = {"blender": load_blender, "ngp": load_ngp, "llff": load_llff, "colmap": load_colmap}
     scene = loaders[fmt](root, downscale=float(downscale), **({"kind": kind} if fmt == "colmap" else {}))
     if fmt != "colmap":

@@ -21,8 +21,8 @@ class RadianceField(nn.Module):
     samples evenly in the contracted space (:func:`senerf.fields.ray_bins`).
 
     Attributes:
-        aabb: ``(2, 3)`` box (a buffer of the subclass), or ``None``: the box mapped to ``[-1, 1]^3``, or with :attr:`contract`
-            the inner region kept as it is while all of space beyond it is contracted.
+        aabb: ``(2, 3)`` box (a buffer of the subclass), or ``None``: the box mapped to ``[-1, 1]^3``, or with
+            :attr:`contract` the inner region kept as it is while all of space beyond it is contracted.
         contract: the field covers all of space (:func:`contract_unit` beyond ``aabb``).
     """
 

@@ -1,5 +1,6 @@
 """Camera paths for fly-through renders: an orbit and a spiral built from the input cameras alone, and a path
-through saved keyframes.  Orbit and spiral frames are evenly spaced and the last one does not repeat the first, so a path played in a loop has no doubled frame.
+through saved keyframes.  Orbit and spiral frames are evenly spaced and the last one does not repeat the first,
+so a path played in a loop has no doubled frame.
 """
 
 from __future__ import annotations

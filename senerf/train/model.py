@@ -29,8 +29,8 @@ NDC_AABB = ((-1.5, -1.5, -1.0), (1.5, 1.5, 1.0))
 #: Boxes wider than this (world units) get their densities and occupancy threshold scaled to it (``choose_model``).
 DENSITY_PLATEAU_WIDTH = 4.0
 #: The settings :func:`choose_model` reports, in this order (then any other override).
-_REPORTED = ("field", "ndc", "contract", "aabb", "near", "bound", "resolution", "n_samples", "occupancy_resolution", "train_background",
-             "view_dependent")
+_REPORTED = ("field", "ndc", "contract", "aabb", "near", "bound", "resolution", "n_samples", "occupancy_resolution",
+             "train_background", "view_dependent")
 
 
 def camera_aabb(c2w: np.ndarray, fov_deg: float, margin: float = 1.05) -> tuple[np.ndarray, float, np.ndarray]:

@@ -109,8 +109,9 @@ def test_a_tiny_run_writes_what_the_design_promises(setup, reference):
 
 
 def _files(folder: Path) -> dict:
-    """Every file under ``folder`` by relative name: the renders' bytes, metrics.json without its timings (seconds, phases, samples/s), and the
-    checkpoints' step, field and occupancy grid (they also record the training's seconds)."""
+    """Every file under ``folder`` by relative name: the renders' bytes, metrics.json without its timings (seconds,
+    phases, samples/s), and the checkpoints' step, field and occupancy grid (they also record the training's
+    seconds)."""
     from senerf.train import load_checkpoint
 
     files = {}
