@@ -123,11 +123,11 @@ class FittedRun:
         if view_dirs is not None:
             dirs = np.broadcast_to(np.asarray(view_dirs, dtype=np.float64), pts.shape).reshape(-1, 3)
             dirs = dirs / np.clip(np.linalg.norm(dirs, axis=-1, keepdims=True), 1e-12, None)
-        if self.model.ndc:
+        if self.model.ndc:   # the NDC warp of the fit's rays (one focal length, the first training view's)
+            from senerf.fields import ndc_points
+
             k = self.scene.intrinsics_all[int(self.train_idx[0])]
-            z = np.clip(flat[:, 2], 1e-9, None)
-            ax, ay, near = 2.0 * k.fx / k.width, 2.0 * k.fy / k.height, self.model.ndc_near
-            flat = np.stack([ax * flat[:, 0] / z, ay * flat[:, 1] / z, 1.0 - 2.0 * near / z], axis=-1)
+            flat = ndc_points(torch.as_tensor(flat), k.fx, k.fy, k.width, k.height, self.model.ndc_near).numpy()
         else:
             flat = flat - np.asarray(self.model.frame_origin, dtype=np.float64)
         sigma = np.empty(len(flat), np.float32)

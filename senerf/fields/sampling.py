@@ -7,7 +7,7 @@ import torch
 
 from .base import contract_unit
 
-__all__ = ["bin_fractions", "linear_bins", "contracted_bins", "ray_bins", "ndc_rays",
+__all__ = ["bin_fractions", "linear_bins", "contracted_bins", "ray_bins", "ndc_points", "ndc_rays",
            "ndc_t_to_depth", "CONTRACTED_CANDIDATES"]
 
 #: Distances per ray, geometrically spaced from near to far, whose contracted positions place contracted bins.
@@ -102,6 +102,16 @@ def ray_bins(origins: torch.Tensor, dirs: torch.Tensor, near: torch.Tensor, far:
     return contracted_bins(origins, dirs, near, far, u, contract_aabb)
 
 
+def ndc_points(xyz: torch.Tensor, fx: float, fy: float, width: float, height: float, near: float = 1.0
+               ) -> torch.Tensor:
+    """The NDC map of :func:`ndc_rays`, ``(X, Y, Z) -> (ax X / Z, ay Y / Z, 1 - 2 near / Z)``, of points
+    ``xyz (..., 3)`` in the frame whose +z is the scene's forward direction (``Z`` clamped to ``1e-9``)."""
+    x, y, z = xyz.unbind(-1)
+    z = z.clamp(min=1e-9)
+    ax, ay = 2.0 * fx / width, 2.0 * fy / height
+    return torch.stack([ax * x / z, ay * y / z, 1.0 - 2.0 * near / z], dim=-1)
+
+
 def ndc_rays(rays_o: torch.Tensor, rays_d: torch.Tensor, fx: float, fy: float, width: float,
              height: float, near: float = 1.0) -> tuple[torch.Tensor, torch.Tensor]:
     """LLFF normalised device coordinates for cameras looking along **+z** (OpenCV convention).
@@ -128,7 +138,7 @@ def ndc_rays(rays_o: torch.Tensor, rays_d: torch.Tensor, fx: float, fy: float, w
     ox, oy, oz = o.unbind(-1)
     oz = oz.clamp(min=1e-9)
     ax, ay = 2.0 * fx / width, 2.0 * fy / height
-    o_ndc = torch.stack([ax * ox / oz, ay * oy / oz, 1.0 - 2.0 * near / oz], dim=-1)
+    o_ndc = ndc_points(o, fx, fy, width, height, near)
     d_ndc = torch.stack([ax * (rays_d[:, 0] / dz - ox / oz), ay * (rays_d[:, 1] / dz - oy / oz),
                          2.0 * near / oz], dim=-1)
     return o_ndc, d_ndc

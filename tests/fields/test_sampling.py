@@ -7,7 +7,7 @@ import torch
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from senerf.fields import bin_fractions, contracted_bins, linear_bins, ndc_rays, ndc_t_to_depth, ray_bins
+from senerf.fields import bin_fractions, contracted_bins, linear_bins, ndc_points, ndc_rays, ndc_t_to_depth, ray_bins
 
 
 def stratified_bins(near, far, n_bins, generator=None, randomized=True):
@@ -65,6 +65,9 @@ def test_ndc_depth_and_straight_rays():
         p = o + s[:, None] * d
         t_ndc = 1.0 - near / depth
         np.testing.assert_allclose((o_ndc + t_ndc * d_ndc).numpy(), _ndc_of_point(p, fx, fy, w, h, near).numpy(),
+                                   rtol=1e-9, atol=1e-9)
+        # a point's NDC image (senerf.load_run's density queries) lies on its ray's NDC line
+        np.testing.assert_allclose(ndc_points(p, fx, fy, w, h, near).numpy(), (o_ndc + t_ndc * d_ndc).numpy(),
                                    rtol=1e-9, atol=1e-9)
         np.testing.assert_allclose(ndc_t_to_depth(torch.tensor(t_ndc, dtype=torch.float64), near).item(), depth, rtol=1e-12)
 
