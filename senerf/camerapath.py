@@ -150,48 +150,53 @@ def _size(doc: dict, keys: tuple, path: Path) -> tuple[int, int]:
     return values[0], values[1]
 
 
+def _frames(rows, key: str, path: Path, members: str, parse) -> tuple[np.ndarray, list]:
+    """``(c2w (n, 4, 4), n intrinsics)`` of the non-empty list ``rows`` (the file's ``key``), each object read by
+    ``parse(row, field) -> (c2w (4, 4), Intrinsics)``; ``members`` names what an object holds, for the error."""
+    if not isinstance(rows, list) or not rows:
+        raise InputError("expected a non-empty list", file=path, field=key)
+    keys, ks = [], []
+    for i, row in enumerate(rows):
+        field = f"{key}[{i}]"
+        if not isinstance(row, dict):
+            raise InputError(f"expected an object with {members}", file=path, field=field)
+        c2w, k = parse(row, field)
+        keys.append(c2w)
+        ks.append(k)
+    return np.stack(keys), ks
+
+
 def _senerf_keyframes(doc: dict, path: Path) -> tuple[np.ndarray, list]:
     from senerf.geometry import Intrinsics
 
-    rows = doc.get("keyframes")
-    if not isinstance(rows, list) or not rows:
-        raise InputError("expected a non-empty list of keyframes", file=path, field="keyframes")
-    keys, ks = [], []
-    for i, row in enumerate(rows):
-        field = f"keyframes[{i}]"
-        if not isinstance(row, dict):
-            raise InputError("expected an object with 'c2w' and 'intrinsics'", file=path, field=field)
-        keys.append(_pose(row.get("c2w"), path, f"{field}.c2w"))
-        k = row.get("intrinsics")
+    def parse(row: dict, field: str):
+        c2w, k = _pose(row.get("c2w"), path, f"{field}.c2w"), row.get("intrinsics")
         if not (isinstance(k, list) and len(k) == 6 and all(is_number(v) for v in k)):
             raise InputError("expected [fx, fy, cx, cy, width, height]", file=path, field=f"{field}.intrinsics")
         w, h = _size(dict(width=k[4], height=k[5]), ("width", "height"), path)
         try:
-            ks.append(Intrinsics(float(k[0]), float(k[1]), float(k[2]), float(k[3]), w, h))
+            return c2w, Intrinsics(*map(float, k[:4]), w, h)
         except ValueError as exc:
             raise InputError(str(exc), file=path, field=f"{field}.intrinsics") from None
+
+    keys, ks = _frames(doc.get("keyframes"), "keyframes", path, "'c2w' and 'intrinsics'", parse)
     if len({k.size for k in ks}) != 1:
         raise InputError("expected one image size for all keyframes", file=path, field="keyframes")
-    return np.stack(keys), ks
+    return keys, ks
 
 
 def _nerfstudio_frames(doc: dict, path: Path) -> tuple[np.ndarray, list]:
     from senerf.geometry import Intrinsics
 
     w, h = _size(doc, ("render_width", "render_height"), path)
-    rows = doc["camera_path"]
-    if not isinstance(rows, list) or not rows:
-        raise InputError("expected a non-empty list of frames", file=path, field="camera_path")
-    keys, ks = [], []
-    for i, row in enumerate(rows):
-        field = f"camera_path[{i}]"
-        if not isinstance(row, dict):
-            raise InputError("expected an object with 'camera_to_world' and 'fov'", file=path, field=field)
-        keys.append(_pose(row.get("camera_to_world"), path, f"{field}.camera_to_world") @ _GL_TO_CV)
+
+    def parse(row: dict, field: str):
         fov = row.get("fov")
         if not (is_number(fov) and 0 < fov < 180):
             raise InputError(f"expected a vertical field of view in degrees, in (0, 180), got {fov!r}", file=path,
                              field=f"{field}.fov")
         f = 0.5 * h / math.tan(math.radians(fov) / 2.0)
-        ks.append(Intrinsics(f, f, w / 2.0, h / 2.0, w, h))
-    return np.stack(keys), ks
+        c2w = _pose(row.get("camera_to_world"), path, f"{field}.camera_to_world") @ _GL_TO_CV
+        return c2w, Intrinsics(f, f, w / 2.0, h / 2.0, w, h)
+
+    return _frames(doc["camera_path"], "camera_path", path, "'camera_to_world' and 'fov'", parse)
