@@ -5,7 +5,7 @@
   fit is refused: its box is in NDC, and a world mesh of its frustum would be mostly the far plane's haze).
   Vertex colours are the field's colour at the vertex seen along the inward normal.
 * ``--points FILE`` (``.ply``): every pixel with opacity above 0.5 of the rendered training views and of the pseudo
-  views the loaded field labels next (the next iteration's, :func:`senerf.selftrain.labels.sample_pseudo_cameras`),
+  views the loaded field labels next (the next iteration's, :meth:`senerf.fitted.FittedRun.pseudo_cameras`),
   lifted with its rendered depth and kept when another view agrees: the warp's forward-backward test
   (:func:`senerf.geometry.reproject`) finds that view's rendered depth where the point lands, and its pixel back.
 * ``--depth DIR``: ``depth_XXX.png`` 16-bit z-depth per view and ``depth_scale.json``: ``z = value * scale`` in
@@ -229,16 +229,6 @@ def build_parser() -> OneLineParser:
     return p
 
 
-def _pseudo_cameras(run):
-    """The pseudo cameras the loaded field labels next (iteration ``run.iteration + 1``'s)."""
-    from senerf.config import SelfTrainConfig
-    from senerf.runfolder import read_run
-    from senerf.selftrain.labels import sample_pseudo_cameras
-
-    cfg = SelfTrainConfig(**read_run(run.folder)["settings"]["selftrain"])
-    return sample_pseudo_cameras(run.scene, run.train_idx, cfg, run.iteration + 1)
-
-
 def _run(args) -> int:
     from senerf.fitted import load_run
 
@@ -264,7 +254,7 @@ def _run(args) -> int:
         import trimesh
 
         cams = run.cameras
-        pc2w, pk = _pseudo_cameras(run)
+        pc2w, pk = run.pseudo_cameras(run.iteration + 1)
         c2w = np.concatenate([cams.c2w[run.train_idx], pc2w])
         intr = tuple(cams.intrinsics[int(i)] for i in run.train_idx) + tuple(pk)
         xyz, rgb = fused_points(c2w, intr, _render(run, c2w, intr, progress, "points: render"))

@@ -52,6 +52,7 @@ class FittedRun:
         train_idx, test_idx: ``(m,)``, ``(t,)`` the run's view indices into the scene.
         train: the run's :class:`senerf.config.TrainConfig` (its seed and steps rebuild the fields).
         finished: the run's finished iterations, ascending.
+        selftrain: the run's :class:`senerf.config.SelfTrainConfig` (its pseudo cameras).
     """
 
     folder: Path
@@ -64,12 +65,20 @@ class FittedRun:
     test_idx: np.ndarray
     train: object
     finished: tuple
+    selftrain: object = None
 
     @property
     def cameras(self) -> Cameras:
         """The scene's cameras (all views) and the run's train/test split."""
         s = self.scene
         return Cameras(s.c2w, s.intrinsics_all, self.train_idx, self.test_idx, s.image_paths)
+
+    def pseudo_cameras(self, iteration: int):
+        """``(c2w (P, 4, 4), P intrinsics)``: the pseudo cameras self-training iteration ``iteration`` (>= 1) samples,
+        the same draws as the fit (:func:`senerf.selftrain.labels.sample_pseudo_cameras`)."""
+        from senerf.selftrain.labels import sample_pseudo_cameras
+
+        return sample_pseudo_cameras(self.scene, self.train_idx, self.selftrain, int(iteration))
 
     def at_iteration(self, iteration: int) -> "FittedRun":
         """This run with the field of another finished ``iteration`` (0 = the teacher), on the same device."""
@@ -167,7 +176,7 @@ def load_run(folder, iteration: int | None = None, device: str = "cpu") -> Fitte
     Warns:
         UserWarning: the scene's files no longer hold what the fit read (``run.json``'s ``scene_files``).
     """
-    from senerf.config import ModelConfig, TrainConfig
+    from senerf.config import ModelConfig, SelfTrainConfig, TrainConfig
     from senerf.data import changed_files, detect_format, load_scene, scene_file_digests, view_names
 
     folder = Path(folder)
@@ -181,7 +190,7 @@ def load_run(folder, iteration: int | None = None, device: str = "cpu") -> Fitte
         raise InputError("holds no finished iteration yet; let senerf-fit finish one (rerun its command to resume)",
                          file=folder)
     configs = {}
-    for key, config in (("model", ModelConfig), ("train", TrainConfig)):
+    for key, config in (("model", ModelConfig), ("train", TrainConfig), ("selftrain", SelfTrainConfig)):
         try:
             configs[key] = config(**run["settings"][key])
         except InputError as exc:   # the config's own check, named in run.json
@@ -202,7 +211,8 @@ def load_run(folder, iteration: int | None = None, device: str = "cpu") -> Fitte
         more = f" and {len(lines) - 1} more" if len(lines) > 1 else ""
         warnings.warn(f"{run_path}: the scene's files changed since the fit ({lines[0]}{more}); its cameras and "
                       "photos are read as they are now", stacklevel=2)
-    fitted = FittedRun(folder, scene, model, None, None, -1, train_idx, test_idx, train, tuple(done))
+    fitted = FittedRun(folder, scene, model, None, None, -1, train_idx, test_idx, train, tuple(done),
+                       configs["selftrain"])
     return with_iteration(fitted, done[-1] if iteration is None else int(iteration), device)
 
 

@@ -222,18 +222,13 @@ class Viewer:
         """The pseudo views the shown iteration's student was distilled from (none for the teacher)."""
         import imageio.v3 as iio
 
-        from senerf.config import SelfTrainConfig
-        from senerf.runfolder import read_run
-        from senerf.selftrain import sample_pseudo_cameras
-
         run = self.run
         for handle in self.pseudo:
             handle.remove()
         self.pseudo = []
         if run.iteration == 0:
             return
-        cfg = SelfTrainConfig(**read_run(run.folder)["settings"]["selftrain"])
-        c2w, ks = sample_pseudo_cameras(run.scene, run.train_idx, cfg, run.iteration)
+        c2w, ks = run.pseudo_cameras(run.iteration)
         for j, (pose, k) in enumerate(zip(c2w, ks)):
             mask = Path(run.folder) / f"iter_{run.iteration}" / "pseudo" / f"mask_{j:03d}.png"
             image = np.asarray(iio.imread(mask))[..., :3] if mask.is_file() else None
