@@ -11,6 +11,7 @@
  * gtable buffer (no races).  Corner rows of point n + PD are prefetched while point n is processed (the
  * planes are larger than the caches; the gathers are latency bound).
  * Total variation (kp_tv): one pass over a plane's rows, for the loss and, in the backward, the gradient.
+ * Feature similarity (kp_feature_cosine, selftrain/reliability.py): plain float32 features whatever REAL and NF.
  */
 #include <stdint.h>
 #include <math.h>
@@ -190,4 +191,57 @@ double kp_tv(const REAL *plane, int64_t r, int64_t b0, int64_t b1, REAL c, REAL 
         for (int f = 0; f < NF; ++f) total += acc[f];
     }
     return total;
+}
+
+
+/* Cosine similarity of pixel features with another view's features sampled bilinearly, fused (no sampled array is
+ * made): for pixels n in [n0, n1), a = src[rows[n]] and b = feat bilinearly sampled at uv[n]; out[n] =
+ * dot(a, b) / max(|a| |b|, eps).  src (M, C), feat (h, w, C) row-major float32 (whatever REAL is), uv (N, 2) float64
+ * (column, row; pixel centres at i + 0.5).  The corners, weights and blend of reliability.py's _bilinear_corners and
+ * bilinear_sample_reference, in the same float32 operations and order (b to the bit); the dot product and the
+ * squared norms summed in double over FL independent lanes (vectorisable without reordering any sum: the result
+ * depends on C alone, never on how the pixels are split over threads). */
+#define FL 16
+
+static inline float cosine_corner(double t, int64_t n, int64_t *i0, int64_t *i1) {
+    double lim = (double)(n - 1);
+    t = t >= 0 ? (t <= lim ? t : lim) : 0;   /* clamped to the image; NaN maps to 0: never an out-of-range row */
+    *i0 = (int64_t)t;                         /* >= 0, so truncation == floor */
+    *i1 = *i0 + 1 < n ? *i0 + 1 : n - 1;
+    return (float)(t - (double)*i0);
+}
+
+void kp_feature_cosine(const float *src, const int64_t *rows, const float *feat, int64_t h, int64_t w, int64_t c,
+                       const double *uv, int64_t n0, int64_t n1, double eps, float *out) {
+    for (int64_t n = n0; n < n1; ++n) {
+        int64_t x0, x1, y0, y1;
+        const float fx = cosine_corner(uv[2 * n] - 0.5, w, &x0, &x1);
+        const float fy = cosine_corner(uv[2 * n + 1] - 0.5, h, &y0, &y1);
+        const float gx = 1.0f - fx, gy = 1.0f - fy;
+        const float *restrict a = src + rows[n] * c;
+        const float *restrict t00 = feat + (y0 * w + x0) * c, *restrict t01 = feat + (y0 * w + x1) * c,
+                    *restrict t10 = feat + (y1 * w + x0) * c, *restrict t11 = feat + (y1 * w + x1) * c;
+        double ab[FL], aa[FL], bb[FL];
+        for (int l = 0; l < FL; ++l) ab[l] = aa[l] = bb[l] = 0.0;
+        int64_t k = 0;
+        for (; k + FL <= c; k += FL)
+            for (int l = 0; l < FL; ++l) {
+                const float top = t00[k + l] * gx + t01[k + l] * fx, bottom = t10[k + l] * gx + t11[k + l] * fx;
+                const double av = a[k + l], bv = top * gy + bottom * fy;
+                ab[l] += av * bv;
+                aa[l] += av * av;
+                bb[l] += bv * bv;
+            }
+        for (int l = 0; k < c; ++k, ++l) {
+            const float top = t00[k] * gx + t01[k] * fx, bottom = t10[k] * gx + t11[k] * fx;
+            const double av = a[k], bv = top * gy + bottom * fy;
+            ab[l] += av * bv;
+            aa[l] += av * av;
+            bb[l] += bv * bv;
+        }
+        double sab = 0.0, saa = 0.0, sbb = 0.0;
+        for (int l = 0; l < FL; ++l) { sab += ab[l]; saa += aa[l]; sbb += bb[l]; }
+        const double den = sqrt(saa) * sqrt(sbb);
+        out[n] = (float)(sab / (den < eps ? eps : den));   /* a NaN stays NaN, as np.maximum keeps it */
+    }
 }

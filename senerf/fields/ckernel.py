@@ -1,5 +1,6 @@
 """The compiled fused K-Planes kernel (``_kplanes_kernel.c``, package data: plane features, their gradient, the
-planes' total variation and SH encoding): build, load, call.
+planes' total variation and SH encoding; also the feature similarity of the self-training's reliability): build, load,
+call.
 
 On first use the source is compiled (``$CC``, else ``cc`` or ``gcc``; ``-march=native`` where the compiler knows it)
 and loaded with :mod:`ctypes`; where it cannot be, :func:`load_kernel` returns ``None``, :func:`kernel_status` says
@@ -26,10 +27,12 @@ import threading
 import warnings
 from pathlib import Path
 
+import numpy as np
 import torch
 
 __all__ = ["load_kernel", "kernel_status", "cpu_planes_path", "cpu_planes_warning", "warn_without_kernel",
-           "fused_plane_features", "fused_sh4", "fused_plane_tv", "MAX_FEATURES", "MAX_SCALES"]
+           "fused_plane_features", "fused_sh4", "fused_plane_tv", "fused_feature_similarity", "MAX_FEATURES",
+           "MAX_SCALES"]
 
 MAX_FEATURES = 256
 MAX_SCALES = 8
@@ -151,6 +154,8 @@ def load_kernel(dtype: torch.dtype, n_features: int = 16):
         fn.argtypes, fn.restype = argtypes, None
     real_t = ctypes.c_float if real == "float" else ctypes.c_double
     lib.kp_tv.argtypes, lib.kp_tv.restype = [ptr, i64, i64, i64, real_t, ptr], ctypes.c_double
+    lib.kp_feature_cosine.argtypes = [ptr, ptr, ptr, i64, i64, i64, ptr, i64, i64, ctypes.c_double, ptr]
+    lib.kp_feature_cosine.restype = None
     _STATUS["status"] = "loaded"
     return lib
 
@@ -340,3 +345,61 @@ def fused_plane_tv(table: torch.Tensor, resolutions: tuple[int, ...], offsets: l
     if lib is None:
         return None
     return _FusedTV.apply(table, tuple(resolutions), list(offsets), lib)
+
+
+def _host_float32(x) -> np.ndarray | None:
+    """``x`` (an array or a tensor) as a C-contiguous float32 host array sharing its memory where it can (a copy
+    only when it is strided), or ``None`` when it is a tensor off the CPU or either is not float32: no silent copy of
+    a view's features, nor a read of device memory as host memory."""
+    if isinstance(x, torch.Tensor):
+        if x.device.type != "cpu" or x.dtype != torch.float32:
+            return None
+        x = x.detach().contiguous().numpy()
+    x = np.asarray(x)
+    return np.ascontiguousarray(x) if x.dtype == np.float32 else None
+
+
+def fused_feature_similarity(src, rows: np.ndarray, features, uv: np.ndarray, eps: float = 1e-8):
+    """The cosine similarity of pixel features with another view's features sampled bilinearly, by the compiled
+    kernel in one pass over the feature rows, or ``None`` when it cannot be used.
+
+    What :func:`senerf.selftrain.reliability.view_similarity` scores: ``cosine_similarity(src[rows],
+    bilinear_sample(features, uv))`` without the sampled ``(N, C)`` array and the temporaries of the NumPy path
+    (the lookup is memory bound: each temporary is as much traffic again).  The sample is the NumPy one to the
+    bit (its corners, clamping, weights and float32 operations); the dot product and the norms are summed in
+    double (float32 there), so the two agree to ~1e-6, and the result does not depend on the thread count.
+
+    Args:
+        src: ``(M, C)`` (or ``(H, W, C)``) float32 pixel features: an array or a CPU tensor.
+        rows: ``(N,)`` integer rows of ``src`` (flat pixel indices), each in ``[0, M)``.
+        features: ``(H', W', C)`` float32 features of the other view: an array or a CPU tensor.
+        uv: ``(N, 2)`` pixel coordinates in that view (column, row; pixel centres at ``i + 0.5``; clamped to the
+            image as :func:`senerf.selftrain.reliability.bilinear_sample` clamps them).
+        eps: the similarity is ``dot / max(|a| |b|, eps)``: 0 for a zero vector.
+    Returns:
+        ``(N,)`` float32 array, or ``None`` when a tensor is off the CPU, either features are not float32, or no
+        kernel can be loaded.  Raises ``ValueError`` on mismatched shapes and ``IndexError`` on a row out of range.
+    """
+    a, feat = _host_float32(src), _host_float32(features)
+    if a is None or feat is None:
+        return None
+    a = a.reshape(-1, a.shape[-1])
+    rows = np.ascontiguousarray(rows, dtype=np.int64)
+    uv = np.ascontiguousarray(uv, dtype=np.float64)
+    n = rows.shape[0]
+    if feat.ndim != 3 or feat.shape[2] != a.shape[1] or 0 in feat.shape[:2] or rows.ndim != 1 or uv.shape != (n, 2):
+        raise ValueError(f"expected src (M, C), rows (N,), features (H, W, C) with H, W >= 1 and uv (N, 2), got "
+                         f"{a.shape}, {rows.shape}, {feat.shape} and {uv.shape}")
+    if n and (rows.min() < 0 or rows.max() >= a.shape[0]):
+        raise IndexError(f"rows must lie in [0, {a.shape[0]}), got {rows.min()} .. {rows.max()}")
+    lib = load_kernel(torch.float32)
+    if lib is None:
+        return None
+    out = np.empty(n, dtype=np.float32)
+    h, w, c = feat.shape
+    if n == 0:
+        return out
+    _run([functools.partial(lib.kp_feature_cosine, a.ctypes.data, rows.ctypes.data, feat.ctypes.data, h, w, c,
+                            uv.ctypes.data, n0, n1, float(eps), out.ctypes.data)
+          for n0, n1 in _split(n, torch.get_num_threads())], keep=(a, rows, feat, uv, out))
+    return out

@@ -1,5 +1,6 @@
-"""Ray reliability by feature consistency across views (NumPy; the feature lookups in torch on the features' device
-when they are handed over as tensors, as a CUDA fit does).
+"""Ray reliability by feature consistency across views (NumPy; the feature lookups by the compiled kernel of
+:func:`senerf.fields.ckernel.fused_feature_similarity` on the CPU where it loads, else in NumPy, or in torch on the
+features' device when they are handed over as tensors off the CPU, as a CUDA fit does).
 
 **Background** pseudo pixels (teacher opacity ``< opacity_threshold``), a case the paper leaves open, are neither
 reliable nor unreliable here: they do not enter the adaptive threshold's distribution and get no prior target (the
@@ -146,6 +147,31 @@ def _lookup_similarity_torch(src_flat, idx: np.ndarray, features, uv: np.ndarray
     return out.cpu().numpy()
 
 
+def _lookup_similarity(flat_src, idx: np.ndarray, features, uv: np.ndarray) -> np.ndarray:
+    """The similarity of the rows ``idx (N,)`` of ``flat_src (H W, C)`` with ``features (H', W', C)`` sampled at
+    ``uv (N, 2)``: ``(N,)`` float32.  The compiled kernel where it can run (it reads the four corner rows and the
+    pixel's row once, and makes no ``(N, C)`` temporaries: the lookup is memory bound); else, for tensor pseudo
+    features, :func:`_lookup_similarity_torch` on their device; else :func:`bilinear_sample` and
+    :func:`cosine_similarity` in chunks, the reference the kernel matches to ~1e-6 (its sums are in double)."""
+    from ..fields.ckernel import fused_feature_similarity
+
+    on_torch = not isinstance(flat_src, np.ndarray)
+    if not on_torch:
+        if hasattr(features, "cpu") and not isinstance(features, np.ndarray):   # a tensor, on any device
+            features = features.cpu().numpy()
+        features = np.asarray(features, dtype=np.float32)
+    fast = fused_feature_similarity(flat_src, idx, features, uv)
+    if fast is not None:
+        return fast
+    if on_torch:
+        return _lookup_similarity_torch(flat_src, idx, features, uv)
+    out = np.empty(idx.size, dtype=np.float32)
+    for start in range(0, idx.size, _SAMPLE_CHUNK):   # in chunks: a (pixels, C) lookup makes ~6 temporaries
+        part = slice(start, start + _SAMPLE_CHUNK)
+        out[part] = cosine_similarity(flat_src[idx[part]], bilinear_sample(features, uv[part]))
+    return out
+
+
 def view_similarity(pseudo_features: np.ndarray, pseudo_z: np.ndarray, pseudo_opacity: np.ndarray,
                     pseudo_intrinsics, pseudo_c2w: np.ndarray,
                     known_features: np.ndarray, known_z: np.ndarray, known_intrinsics, known_c2w: np.ndarray,
@@ -161,7 +187,8 @@ def view_similarity(pseudo_features: np.ndarray, pseudo_z: np.ndarray, pseudo_op
 
     Args:
         pseudo_features: (H, W, C) features of the teacher's pseudo-view render: an array, or a tensor (then the
-            feature lookups run in torch on its device, and ``known_features[j]`` may be tensors there too).
+            feature lookups run in torch on its device where the compiled kernel cannot take them, and
+            ``known_features[j]`` may be tensors there too).
         pseudo_z: (H, W) teacher z-depth of the pseudo view.
         pseudo_opacity: (H, W) teacher accumulated opacity of the pseudo view.
         pseudo_intrinsics: ``geometry.Intrinsics`` of the pseudo view (size H x W).
@@ -224,17 +251,7 @@ def view_similarity(pseudo_features: np.ndarray, pseudo_z: np.ndarray, pseudo_op
             continue
         uv_j = np.asarray(uv_all[j]).reshape(-1, 2)
         out_j = per_view[j].reshape(-1)
-        if on_torch:
-            out_j[idx] = _lookup_similarity_torch(flat_src, idx, known_features[j], uv_j[idx])
-        else:
-            features_j = known_features[j]   # (H', W', C), built now when lazy
-            if hasattr(features_j, "cpu") and not isinstance(features_j, np.ndarray):   # a tensor, on any device
-                features_j = features_j.cpu().numpy()
-            features_j = np.asarray(features_j, dtype=np.float32)
-            # in chunks: a (pixels, C) lookup makes ~6 temporaries of that size
-            for start in range(0, idx.size, _SAMPLE_CHUNK):
-                part = idx[start:start + _SAMPLE_CHUNK]
-                out_j[part] = cosine_similarity(flat_src[part], bilinear_sample(features_j, uv_j[part]))
+        out_j[idx] = _lookup_similarity(flat_src, idx, known_features[j], uv_j[idx])   # (H', W', C): built when lazy
         bad = ~np.isfinite(out_j)   # a NaN render or photo: no match there, so it cannot veto another view
         if bad.any():
             out_j[bad] = NO_MATCH

@@ -1,5 +1,6 @@
 """The compiled K-Planes kernel's build, cache and fallback (senerf.fields.ckernel); its numbers against the
-references are checked in test_kplanes.py and test_encoding.py."""
+references are checked in test_kplanes.py, test_encoding.py and (the feature similarity)
+selftrain/test_reliability.py."""
 
 from __future__ import annotations
 

@@ -6,7 +6,9 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+import torch
 
+import senerf.fields.ckernel as ck
 from senerf import geometry
 from senerf.selftrain.reliability import (
     NO_MATCH,
@@ -22,6 +24,21 @@ from senerf.selftrain.reliability import (
 )
 
 K = geometry.Intrinsics.from_fov(60.0, 40, 32)
+
+
+def _disable_kernel(monkeypatch) -> None:
+    """No compiled kernel loads from here on (a machine without a C compiler): the NumPy and torch lookups run."""
+    monkeypatch.setattr(ck, "load_kernel", lambda dtype, n_features=16: None)
+
+
+@pytest.fixture
+def no_kernel(monkeypatch):
+    _disable_kernel(monkeypatch)
+
+
+def _kernel_or_skip() -> None:
+    if ck.load_kernel(torch.float32) is None:
+        pytest.skip(f"compiled kernel {ck.kernel_status()}")
 PLANE_Z = 3.0
 
 
@@ -105,8 +122,9 @@ def test_true_depth_high_wrong_depth_low_similarity():
     assert np.median(bad.similarity[seen_b]) < np.median(good.similarity[seen]) - 0.3
 
 
-def test_chunked_feature_lookup_is_exact(monkeypatch):
-    """view_similarity samples known features in pixel chunks (bounded memory): same result as one go."""
+def test_chunked_feature_lookup_is_exact(monkeypatch, no_kernel):
+    """Without the compiled kernel, view_similarity samples known features in pixel chunks (bounded memory): same
+    result as one go."""
     import senerf.selftrain.reliability as rel
 
     kf, kz, kc, pf, pz, opacity = _two_known_views_and_a_pseudo_view()
@@ -163,8 +181,9 @@ def test_foreground_only_scores_the_foreground_alone_and_the_same(monkeypatch):
     opacity = opacity.copy()
     opacity[:, :15] = 0.2          # a background band on the left
     looked_up = []
-    real = rel.bilinear_sample
-    monkeypatch.setattr(rel, "bilinear_sample", lambda image, uv: (looked_up.append(len(uv)), real(image, uv))[1])
+    real = rel._lookup_similarity   # the compiled kernel's path or NumPy's
+    monkeypatch.setattr(rel, "_lookup_similarity",
+                        lambda src, idx, feats, uv: (looked_up.append(len(uv)), real(src, idx, feats, uv))[1])
     full = view_similarity(pf, pz, opacity, K, camera(0.05), kf, kz, K, kc)
     n_full = sum(looked_up)
     looked_up.clear()
@@ -371,21 +390,20 @@ def test_an_adaptive_quantile_on_a_tie_keeps_the_tied_pixels():
 
 
 def _devices():
-    import torch
-
     return ["cpu"] + (["cuda"] if torch.cuda.is_available() else [])
 
 
 @pytest.mark.parametrize("device", _devices())
 @pytest.mark.parametrize("known_as", ["array", "tensor", "lazy"])
 @pytest.mark.parametrize("pseudo_scale", [1.0, -1e-3])
-def test_tensor_features_are_looked_up_in_torch_with_the_same_result(monkeypatch, device, known_as, pseudo_scale):
+@pytest.mark.parametrize("kernel", [True, False])
+def test_tensor_features_are_looked_up_in_torch_with_the_same_result(monkeypatch, device, known_as, pseudo_scale,
+                                                                     kernel):
     """Features handed over as tensors (a CUDA fit keeps VGG's features on the GPU) are looked up in torch on
-    their device: the NumPy path's valid views and NO_MATCH pixels exactly, its similarities within float32
-    rounding, across lookup chunks, with a partly dropped background and a NaN known view not counted; also
-    for pseudo features scaled by -1e-3 (negative cosines, small norms) and zero vectors (similarity 0)."""
-    import torch
-
+    their device (on the CPU by the compiled kernel where it loads): the NumPy path's valid views and NO_MATCH
+    pixels exactly, its similarities within float32 rounding, across lookup chunks, with a partly dropped
+    background and a NaN known view not counted; also for pseudo features scaled by -1e-3 (negative cosines,
+    small norms) and zero vectors (similarity 0)."""
     import senerf.selftrain.reliability as rel
     from senerf.selftrain.features import LazyViewFeatures
 
@@ -397,7 +415,11 @@ def test_tensor_features_are_looked_up_in_torch_with_the_same_result(monkeypatch
     kf = kf.copy()
     kf[1, :4] = np.nan      # a corrupt band in one known view
     monkeypatch.setattr(rel, "_SAMPLE_CHUNK", 5)            # torch takes 4 x 5 pixels a chunk: many chunks
-    expect = view_similarity(pf, pz, opacity, K, camera(0.05), kf, kz, K, kc, foreground_only=True)
+    with monkeypatch.context() as plain:
+        _disable_kernel(plain)
+        expect = view_similarity(pf, pz, opacity, K, camera(0.05), kf, kz, K, kc, foreground_only=True)
+    if not kernel:
+        _disable_kernel(monkeypatch)
     known = {"array": kf, "tensor": torch.from_numpy(kf).to(device),
              "lazy": LazyViewFeatures(lambda j: kf[j].copy(), kf.shape)}[known_as]
 
@@ -419,12 +441,134 @@ def test_tensor_features_are_looked_up_in_torch_with_the_same_result(monkeypatch
 
 @pytest.mark.parametrize("device", _devices())
 def test_array_pseudo_features_with_tensor_known_features_take_the_numpy_path(device):
-    """Known features as a tensor (a GPU extractor's) beside array pseudo features: the NumPy path, after
-    copying each known view to the host, to the bit (``np.asarray`` of a CUDA tensor raised before)."""
-    import torch
-
+    """Known features as a tensor (a GPU extractor's) beside array pseudo features: the host path (the compiled
+    kernel's or NumPy's), after copying each known view to the host, to the bit (``np.asarray`` of a CUDA tensor
+    raised before)."""
     kf, kz, kc, pf, pz, opacity = _two_known_views_and_a_pseudo_view()
     expect = view_similarity(pf, pz, opacity, K, camera(0.05), kf, kz, K, kc)
     got = view_similarity(pf, pz, opacity, K, camera(0.05), torch.from_numpy(kf).to(device), kz, K, kc)
     np.testing.assert_array_equal(got.per_view, expect.per_view)
     np.testing.assert_array_equal(got.valid, expect.valid)
+
+
+def _kernel_case(c: int, common: float = 0.0, seed: int = 5):
+    """Random float32 features ``(9, 13, c)`` of a known view, pixel features ``(40, c)`` and ``(N,)`` rows with
+    ``(N, 2)`` positions: random ones in and around the image, every exact pixel centre, the edges and corners,
+    far out of range on every side; a block of zero known features (sampled at its centres: zero vectors) and
+    zero pixel rows.  ``common`` is put in the first 16 channels of all the others: a large shared component
+    whose squares swamp float32 sums of the small rest (the kernel's are double)."""
+    rng = np.random.default_rng(seed)
+    h, w = 9, 13
+    feats = rng.normal(size=(h, w, c)).astype(np.float32)
+    src = rng.normal(size=(40, c)).astype(np.float32)
+    if common:
+        feats[..., :16] = src[:, :16] = common
+    feats[:3, :3] = 0.0
+    src[:2] = 0.0
+    jj, ii = np.meshgrid(np.arange(w), np.arange(h))
+    centres = np.stack([jj.ravel() + 0.5, ii.ravel() + 0.5], 1)
+    edges = [[0.0, 0.0], [w, h], [w - 0.5, h - 0.5], [0.5, h], [w, 0.25], [6.0, 0.0], [0.0, 4.0], [w, 4.7],
+             [-3.0, 20.0], [100.0, -5.0], [-1e6, -1e6], [1e6, 1e6], [6.3, -40.0], [-7.0, 4.2]]
+    uv = np.concatenate([rng.uniform(-2.0, 15.0, size=(3000, 2)), centres, edges])
+    rows = rng.integers(0, src.shape[0], size=uv.shape[0])
+    return src, rows, feats, uv
+
+
+@pytest.mark.parametrize("c", [960, 37, 3])
+@pytest.mark.parametrize("common", [0.0, 1e4])
+def test_the_fused_kernel_matches_the_reference_lookup(c, common):
+    """The compiled similarity: the cosine of each pixel's row with bilinear_sample_reference's sample (its float32
+    bits: a sample blended in double rounds ~20 % of the cosines otherwise), summed in double, so the float64
+    cosine of that sample rounded to float32 (but for a rare tie), and ~1e-6 of the NumPy path's float32 sums;
+    exact centres give the corner row itself, clamped positions the edge's values, zero vectors 0."""
+    _kernel_or_skip()
+    src, rows, feats, uv = _kernel_case(c, common)
+    got = ck.fused_feature_similarity(src, rows, feats, uv)
+    assert got.dtype == np.float32 and got.shape == rows.shape
+    b = bilinear_sample_reference(feats, uv).astype(np.float64)
+    a = src[rows].astype(np.float64)
+    exact = (a * b).sum(-1) / np.maximum(np.linalg.norm(a, axis=-1) * np.linalg.norm(b, axis=-1), 1e-8)
+    np.testing.assert_allclose(got, exact, rtol=0, atol=1e-7)
+    assert np.mean(got != exact.astype(np.float32)) < 1e-3
+    numpy_path = cosine_similarity(src[rows], bilinear_sample(feats, uv))
+    np.testing.assert_allclose(got, numpy_path, rtol=0, atol=1e-6)
+    zero = (rows < 2) | (np.abs(b).sum(-1) == 0)
+    assert zero.sum() > 50 and np.all(got[zero] == 0.0)
+    h, w = feats.shape[:2]
+    centre = slice(3000, 3000 + h * w)   # the exact centres, in raster order: the known rows unblended
+    flat = feats.reshape(h * w, c).astype(np.float64)
+    a_c = a[centre]
+    want = (a_c * flat).sum(-1) / np.maximum(np.linalg.norm(a_c, axis=-1) * np.linalg.norm(flat, axis=-1), 1e-8)
+    np.testing.assert_allclose(got[centre], want, rtol=0, atol=1e-7)
+
+
+def test_the_fused_kernel_gives_the_same_bits_on_one_and_two_threads():
+    _kernel_or_skip()
+    src, rows, feats, uv = _kernel_case(96)
+    before = torch.get_num_threads()
+    try:
+        torch.set_num_threads(1)
+        one = ck.fused_feature_similarity(src, rows, feats, uv)
+        torch.set_num_threads(2)
+        assert len(ck._split(rows.size, 2)) == 2   # the pixels really are split
+        two = ck.fused_feature_similarity(src, rows, feats, uv)
+    finally:
+        torch.set_num_threads(before)
+    np.testing.assert_array_equal(one, two)
+
+
+def test_the_fused_kernel_takes_cpu_tensors_and_refuses_what_it_cannot_read():
+    """CPU tensors give the arrays' result (a strided one is copied); float64 features, a missing kernel and (where
+    there is one) a CUDA tensor give None, the callers' cue for their own path; bad rows and shapes raise."""
+    _kernel_or_skip()
+    src, rows, feats, uv = _kernel_case(8)
+    want = ck.fused_feature_similarity(src, rows, feats, uv)
+    strided = torch.from_numpy(np.ascontiguousarray(feats.transpose(1, 0, 2))).permute(1, 0, 2)
+    np.testing.assert_array_equal(ck.fused_feature_similarity(torch.from_numpy(src), rows, strided, uv), want)
+    assert ck.fused_feature_similarity(src, rows, feats.astype(np.float64), uv) is None
+    assert ck.fused_feature_similarity(torch.from_numpy(src).double(), rows, feats, uv) is None
+    if torch.cuda.is_available():
+        assert ck.fused_feature_similarity(src, rows, torch.from_numpy(feats).cuda(), uv) is None
+    assert ck.fused_feature_similarity(src, rows[:0], feats, uv[:0]).shape == (0,)
+    with pytest.raises(IndexError, match=r"rows must lie in \[0, 40\)"):
+        ck.fused_feature_similarity(src, rows + 1, feats, uv)
+    with pytest.raises(ValueError, match="uv"):
+        ck.fused_feature_similarity(src, rows, feats, uv[:-1])
+    with pytest.raises(ValueError, match="features"):
+        ck.fused_feature_similarity(src, rows, feats[..., :5], uv)
+
+
+def test_without_a_kernel_the_fused_similarity_is_none(no_kernel):
+    src, rows, feats, uv = _kernel_case(8)
+    assert ck.fused_feature_similarity(src, rows, feats, uv) is None
+
+
+@pytest.mark.parametrize("known_as", ["array", "lazy"])
+def test_view_similarity_with_the_kernel_matches_the_numpy_path(monkeypatch, known_as):
+    """Labelling with the compiled kernel (no NumPy lookup runs) scores what the NumPy path scores: the same valid
+    views and NO_MATCH pixels, similarities within 1e-5, a NaN known view dropped alike, zero vectors 0."""
+    import senerf.selftrain.reliability as rel
+    from senerf.selftrain.features import LazyViewFeatures
+
+    _kernel_or_skip()
+    kf, kz, kc, pf, pz, opacity = _two_known_views_and_a_pseudo_view()
+    pf = pf.copy()
+    pf[20:, 20:] = 0.0
+    kf = kf.copy()
+    kf[1, :4] = np.nan
+    with monkeypatch.context() as plain:
+        _disable_kernel(plain)
+        expect = view_similarity(pf, pz, opacity, K, camera(0.05), kf, kz, K, kc)
+
+    def numpy_path(*args):
+        raise AssertionError("the NumPy lookup ran with the kernel loaded")
+
+    monkeypatch.setattr(rel, "bilinear_sample", numpy_path)
+    known = kf if known_as == "array" else LazyViewFeatures(lambda j: kf[j].copy(), kf.shape)
+    got = view_similarity(pf, pz, opacity, K, camera(0.05), known, kz, K, kc)
+    assert expect.valid.sum() > 500 and (expect.per_view == NO_MATCH).any()
+    assert (expect.per_view[:, 20:, 20:][expect.valid[:, 20:, 20:]] == 0.0).sum() > 10
+    np.testing.assert_array_equal(got.valid, expect.valid)
+    np.testing.assert_array_equal(got.per_view == NO_MATCH, expect.per_view == NO_MATCH)
+    np.testing.assert_allclose(got.per_view, expect.per_view, rtol=0, atol=1e-5)
+    np.testing.assert_allclose(got.similarity, expect.similarity, rtol=0, atol=1e-5)
