@@ -17,11 +17,19 @@ in the same run on the same views: ``view_similarity(foreground_only=True)`` (wh
 scoring every pixel, and ``bilinear_sample`` against ``bilinear_sample_reference`` on the same lookups; both
 pairs must agree exactly on what the labels use (checked, and printed).
 
+``similarity``: the feature lookup of the reliability alone on synthetic fern-sized inputs (no data, no teacher):
+known-view features ``--height x --width x --channels`` (378 x 504 x 960, 730 MB), ``--pixels`` pseudo pixels
+warped by a nearby view's shift (coherent reads, as a real warp's), the compiled
+``ckernel.fused_feature_similarity`` (on all threads, and on one) against the NumPy lookup it replaces
+(``reliability._lookup_similarity_numpy``), best of ``--repeats``; their largest difference is printed (and must
+stay below 1e-5).
+
 Usage::
 
     python benchmarks/bench_selftrain.py masks --steps 600 --out /tmp/bench_st_masks
     python benchmarks/bench_selftrain.py e2e --steps 600 --iterations 3 --out /tmp/bench_st_e2e
     python benchmarks/bench_selftrain.py labelling --downscale 1 --steps 300 --n-pseudo 2 --out /tmp/bench_st_label
+    python benchmarks/bench_selftrain.py similarity --pixels 190000 --out /tmp/bench_st_similarity
 
 Results are printed and written to ``OUT/bench_<mode>.json`` (``masks`` also writes the markdown table
 ``OUT/bench_masks.md`` and ``OUT/mask_quality.png``).  ``masks-table --json FILE`` prints the table of an earlier
@@ -275,9 +283,53 @@ def bench_labelling(args) -> dict:
                 ratio_bilinear_vs_reference=ratio_bil, bilinear_lookups=lookups)
 
 
+def bench_similarity(args) -> dict:
+    """The ``similarity`` mode (module docstring): the compiled lookup against the NumPy one on the same inputs."""
+    from senerf.fields import ckernel
+    from senerf.selftrain import reliability as rel
+
+    h, w, c = args.height, args.width, args.channels
+    if ckernel.load_kernel(torch.float32) is None:
+        raise SystemExit(f"the compiled kernel is {ckernel.kernel_status()}: nothing to time")
+    rng = np.random.default_rng(args.seed)
+    known = rng.random((h, w, c), dtype=np.float32)    # VGG features are ReLU outputs: >= 0
+    pseudo = rng.random((h * w, c), dtype=np.float32)
+    idx = np.sort(rng.choice(h * w, size=min(args.pixels, h * w), replace=False))
+    row, col = np.divmod(idx, w)
+    jitter = 0.2 * rng.standard_normal((idx.size, 2))
+    uv = np.stack([col + 0.5 + 6.3, row + 0.5 - 2.7], 1) + jitter
+    threads = torch.get_num_threads()
+
+    def best(fn) -> tuple[float, np.ndarray]:
+        runs = []
+        for _ in range(args.repeats):
+            t = time.perf_counter()
+            out = fn()
+            runs.append(time.perf_counter() - t)
+        return min(runs), out
+
+    t_numpy, ref = best(lambda: rel._lookup_similarity_numpy(pseudo, idx, known, uv))
+    t_kernel, got = best(lambda: ckernel.fused_feature_similarity(pseudo, idx, known, uv))
+    torch.set_num_threads(1)
+    try:
+        t_kernel1, got1 = best(lambda: ckernel.fused_feature_similarity(pseudo, idx, known, uv))
+    finally:
+        torch.set_num_threads(threads)
+    diff = float(np.abs(got - ref).max())
+    if diff > 1e-5 or not np.array_equal(got, got1):
+        raise AssertionError(f"the kernel differs from the NumPy lookup by {diff:.2e}, or across thread counts")
+    print(f"similarity lookup, known features {h}x{w}x{c} ({known.nbytes / 2**20:.0f} MB), {idx.size} pixels, "
+          f"best of {args.repeats}: NumPy {t_numpy:.2f} s, kernel {t_kernel:.3f} s on {threads} threads "
+          f"({t_numpy / t_kernel:.1f}x), {t_kernel1:.3f} s on 1 ({t_numpy / t_kernel1:.1f}x); "
+          f"max |kernel - NumPy| {diff:.1e}")
+    return {"mode": "similarity", "size": [h, w], "channels": c, "pixels": int(idx.size), "repeats": args.repeats,
+            "numpy_seconds": t_numpy, "kernel_seconds": t_kernel, "kernel_seconds_1_thread": t_kernel1,
+            "speedup": t_numpy / t_kernel, "speedup_1_thread": t_numpy / t_kernel1, "max_abs_difference": diff}
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("mode", choices=("masks", "e2e", "labelling", "masks-table"))
+    p.add_argument("mode", choices=("masks", "e2e", "labelling", "similarity", "masks-table"))
     p.add_argument("--out", default="/tmp/bench_selftrain")
     p.add_argument("--steps", type=int, default=600)
     p.add_argument("--preset", default="fast")
@@ -294,13 +346,19 @@ def main(argv=None) -> int:
     p.add_argument("--threshold", default="adaptive")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--json", default=None, help="masks-table: the bench_masks.json to tabulate")
+    p.add_argument("--height", type=int, default=378, help="similarity: known features' rows (fern at 504x378)")
+    p.add_argument("--width", type=int, default=504, help="similarity: known features' columns")
+    p.add_argument("--channels", type=int, default=960, help="similarity: feature channels (VGG-19's 960)")
+    p.add_argument("--pixels", type=int, default=190000, help="similarity: pseudo pixels looked up")
+    p.add_argument("--repeats", type=int, default=1, help="similarity: timed runs (the best is kept)")
     args = p.parse_args(argv)
     if args.mode == "masks-table":
         print(mask_quality_markdown(json.loads(Path(args.json).read_text()), args.json), end="")
         return 0
     torch.set_num_threads(max(1, os.cpu_count() or 1))
     Path(args.out).mkdir(parents=True, exist_ok=True)
-    result = dict(masks=bench_masks, e2e=bench_e2e, labelling=bench_labelling)[args.mode](args)
+    result = dict(masks=bench_masks, e2e=bench_e2e, labelling=bench_labelling,
+                  similarity=bench_similarity)[args.mode](args)
     from datetime import datetime, timezone
 
     from senerf.bench.runner import git_commit

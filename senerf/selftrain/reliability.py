@@ -147,12 +147,24 @@ def _lookup_similarity_torch(src_flat, idx: np.ndarray, features, uv: np.ndarray
     return out.cpu().numpy()
 
 
+def _lookup_similarity_numpy(flat_src: np.ndarray, idx: np.ndarray, features: np.ndarray,
+                             uv: np.ndarray) -> np.ndarray:
+    """:func:`cosine_similarity` of the rows ``idx (N,)`` of ``flat_src (H W, C)`` with :func:`bilinear_sample` of
+    ``features (H', W', C)`` at ``uv (N, 2)``, in chunks of ``_SAMPLE_CHUNK`` pixels (a ``(pixels, C)`` lookup makes
+    ~6 temporaries of that size): ``(N,)`` float32.  The reference the compiled kernel is held to (to ~1e-6: its
+    sums are in double) and timed against (``bench_selftrain.py similarity``)."""
+    out = np.empty(idx.size, dtype=np.float32)
+    for start in range(0, idx.size, _SAMPLE_CHUNK):
+        part = slice(start, start + _SAMPLE_CHUNK)
+        out[part] = cosine_similarity(flat_src[idx[part]], bilinear_sample(features, uv[part]))
+    return out
+
+
 def _lookup_similarity(flat_src, idx: np.ndarray, features, uv: np.ndarray) -> np.ndarray:
     """The similarity of the rows ``idx (N,)`` of ``flat_src (H W, C)`` with ``features (H', W', C)`` sampled at
     ``uv (N, 2)``: ``(N,)`` float32.  The compiled kernel where it can run (it reads the four corner rows and the
-    pixel's row once, and makes no ``(N, C)`` temporaries: the lookup is memory bound); else, for tensor pseudo
-    features, :func:`_lookup_similarity_torch` on their device; else :func:`bilinear_sample` and
-    :func:`cosine_similarity` in chunks, the reference the kernel matches to ~1e-6 (its sums are in double)."""
+    pixel's row once and makes no ``(N, C)`` temporaries: the lookup is memory bound); else, for tensor pseudo
+    features, :func:`_lookup_similarity_torch` on their device; else :func:`_lookup_similarity_numpy`."""
     from ..fields.ckernel import fused_feature_similarity
 
     on_torch = not isinstance(flat_src, np.ndarray)
@@ -165,11 +177,7 @@ def _lookup_similarity(flat_src, idx: np.ndarray, features, uv: np.ndarray) -> n
         return fast
     if on_torch:
         return _lookup_similarity_torch(flat_src, idx, features, uv)
-    out = np.empty(idx.size, dtype=np.float32)
-    for start in range(0, idx.size, _SAMPLE_CHUNK):   # in chunks: a (pixels, C) lookup makes ~6 temporaries
-        part = slice(start, start + _SAMPLE_CHUNK)
-        out[part] = cosine_similarity(flat_src[idx[part]], bilinear_sample(features, uv[part]))
-    return out
+    return _lookup_similarity_numpy(flat_src, idx, features, uv)
 
 
 def view_similarity(pseudo_features: np.ndarray, pseudo_z: np.ndarray, pseudo_opacity: np.ndarray,
