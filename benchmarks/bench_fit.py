@@ -134,6 +134,10 @@ def main(argv=None) -> int:
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--reuse", action="store_true", help="report an existing fit in --out/<scene> instead of fitting")
     args = ap.parse_args(argv)
+    from senerf.cliargs import huge_page_tensors, short_openmp_waits
+
+    short_openmp_waits()   # the floors measured as senerf-fit runs
+    huge_page_tensors()
     import torch
 
     torch.set_num_threads(args.threads)

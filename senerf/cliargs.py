@@ -18,7 +18,7 @@ from typing import NoReturn
 from senerf.errors import InputError
 
 __all__ = ["OneLineParser", "console_entry", "command_main", "argument_type", "int_flag", "float_flag", "check_device",
-           "threads_flag", "set_threads", "short_openmp_waits", "run_command", "SEED_MAX", "THREADS_MAX",
+           "threads_flag", "set_threads", "short_openmp_waits", "huge_page_tensors", "run_command", "SEED_MAX", "THREADS_MAX",
            "THREADS_HELP", "OPENMP_SPINS"]
 
 #: Largest seed the commands accept (torch generators take a signed 64-bit seed).
@@ -128,6 +128,15 @@ def short_openmp_waits(environ=os.environ) -> None:
     environ.setdefault("GOMP_SPINCOUNT", str(OPENMP_SPINS))
 
 
+def huge_page_tensors(environ=os.environ) -> None:
+    """Let torch put tensors of 2 MiB and more on transparent huge pages (``THP_MEM_ALLOC_ENABLE=1``) unless the
+    user chose; effective only before torch is first imported, and only where the kernel offers huge pages
+    (``/sys/kernel/mm/transparent_hugepage/enabled`` not ``never``).  Each fresh large tensor otherwise costs a page
+    fault per 4 KiB written, and a large field's step allocates several of its plane table's size (gradients of
+    16.5 M parameters on LLFF): a fifth of the step (BENCHMARKS.md, "Whole fits phase by phase")."""
+    environ.setdefault("THP_MEM_ALLOC_ENABLE", "1")
+
+
 def _behind(exc: BaseException, found) -> BaseException | None:
     """The first of ``exc`` and the exceptions behind it (causes, else contexts) for which ``found`` holds, or None:
     torch.save reports a full disk as a RuntimeError raised while handling the OSError, and a cleanup that fails
@@ -152,9 +161,11 @@ def console_entry(main) -> NoReturn:
 
 def command_main(prog: str, body, argv: list[str] | None, interrupted: str) -> int:
     """A command's ``main``: ``body(argv)`` (default ``sys.argv[1:]``) through :func:`run_command`, with OpenMP's
-    short waits set before torch is imported (:func:`short_openmp_waits`)."""
+    short waits and huge pages set before torch is imported (:func:`short_openmp_waits`,
+    :func:`huge_page_tensors`)."""
     argv = list(sys.argv[1:] if argv is None else argv)
     short_openmp_waits()
+    huge_page_tensors()
     return run_command(prog, lambda: body(argv), interrupted)
 
 
