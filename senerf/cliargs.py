@@ -18,8 +18,8 @@ from typing import NoReturn
 from senerf.errors import InputError
 
 __all__ = ["OneLineParser", "console_entry", "command_main", "argument_type", "int_flag", "float_flag", "check_device",
-           "threads_flag", "set_threads", "short_openmp_waits", "huge_page_tensors", "run_command", "SEED_MAX", "THREADS_MAX",
-           "THREADS_HELP", "OPENMP_SPINS"]
+           "threads_flag", "set_threads", "short_openmp_waits", "huge_page_tensors", "run_command", "SEED_MAX",
+           "THREADS_MAX", "THREADS_HELP", "OPENMP_SPINS"]
 
 #: Largest seed the commands accept (torch generators take a signed 64-bit seed).
 SEED_MAX = 2**63 - 1
