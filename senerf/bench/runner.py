@@ -7,6 +7,7 @@ from __future__ import annotations
 import concurrent.futures as cf
 import contextlib
 import json
+import math
 import os
 import platform
 import shlex
@@ -19,13 +20,16 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable
 
+from senerf.config import PRESETS
 from senerf.errors import is_number
 
 from .protocols import RunSpec, parse_protocol
-from .results import append_lines, load_results, result_lines
+from .results import append_lines, final_ok_lines, load_results, result_lines
+from .summary import preset_label
 
 __all__ = ["RunnerConfig", "default_fit_command", "execute_run", "read_metrics", "RayExecutor",
-           "make_executor", "BenchOutcome", "pending_specs", "dry_run_lines", "run_benchmark", "git_commit"]
+           "make_executor", "BenchOutcome", "pending_specs", "dry_run_lines", "estimate_seconds", "estimate_lines",
+           "run_benchmark", "git_commit"]
 
 #: ``python -S -c _WRAPPER REPORT PROG ARGS...`` runs PROG and writes ``"MAXRSS EXITCODE"`` to REPORT: PROG's peak
 #: resident set size in KiB (``ru_maxrss`` from ``os.wait4``) and its exit code (``-N`` when signal N killed it).
@@ -234,6 +238,80 @@ def dry_run_lines(specs: list[RunSpec], results_path: str | Path, runs_dir: str 
     todo, skipped = pending_specs(specs, results_path)
     return ([f"# {skipped + len(todo)} runs: {skipped} already finished, {len(todo)} to run"]
             + [shlex.join(["senerf-fit", *spec.fit_args(Path(runs_dir) / spec.dirname())]) for spec in todo])
+
+
+#: Seconds of one ``senerf-fit`` process (wall clock, start-up and evaluation included) at the fast preset (600 steps
+#: x 1024 rays), per scene kind: (reference pixels, teacher, a student's fixed part, a student's part per training
+#: view: its pseudo views' renders, features and reliability).  Used where the results file has no run to go by.
+#: - object: lego Extreme 100x100, benchmarks/results/lego-extreme3@100.jsonl (EPYC, 6 seeds, 200 test views):
+#:   baseline 37.7 s, SE-NeRF K=1 88.8 s, so 51 s a student; its labelling 4 s a view (BENCHMARKS.md section 2,
+#:   "whole fits phase by phase": 12.4 s over 3 iterations of 3 views).
+#: - forward_facing: fern 3 views 504x378, BENCHMARKS.md section 2 (Xeon-167, de22d79): 552 s of fitting, of it
+#:   training 279 s (1024 of the teacher's and 2688 of the student's rays a step: 106 s and 173 s), labelling 247 s
+#:   (82 s a view), evaluation 21 s (11 s each): teacher 117 s, student 184 + 82 s a view; + 8 s start-up.
+#: - dtu: scan24 3 views 192x192, BENCHMARKS.md "Unbounded scenes" (Xeon-167, ea6330b): 39 + 101 s of fitting;
+#:   labelling taken as fern's share of a student (57 %, 19 s a view); + 6 s start-up.
+_FAST_SECONDS = {"object": (100 * 100, 37.7, 39.0, 4.0), "forward_facing": (504 * 378, 125.0, 184.0, 82.0),
+                 "dtu": (192 * 192, 45.0, 43.0, 19.0)}
+#: balanced (1000 x 4096) over fast, lego Extreme 100x100 (the same jsonl): teacher 72.5 / 37.7 s, a student
+#: 91.5 / 51.1 s; other presets are scaled by their steps x rays a step against fast's.
+_BALANCED_FACTOR = 1.85
+
+
+def estimate_seconds(spec: RunSpec, measured: dict[tuple, list[float]] | None = None) -> tuple[float, str]:
+    """Estimated wall-clock seconds of one run and where the figure comes from (``"measured"``: the mean
+    ``run_seconds`` of the finished runs with the same scene, protocol, method, preset label and K in ``measured``,
+    keyed as :func:`estimate_lines` builds it; else ``"default"``: :data:`_FAST_SECONDS` for the protocol's scene kind,
+    times the teacher plus K students, the preset's factor and ``--steps`` over the preset's steps, and the square
+    root of the pixels over the reference's: lego fast 100x100 -> 400x400 took 61 -> 235 s, 3.9x for 16x the pixels,
+    BENCHMARKS.md section 2)."""
+    key = (spec.scene, spec.protocol, spec.method, preset_label(vars(spec)), spec.iterations)
+    if measured and measured.get(key):
+        return sum(measured[key]) / len(measured[key]), "measured"
+    proto = parse_protocol(spec.protocol)
+    pixels, teacher, student, per_view = _FAST_SECONDS[proto.kind]
+    seconds = teacher + spec.iterations * (student + per_view * proto.n_views)
+    preset = PRESETS[spec.preset]
+    factor = 1.0 if spec.preset == "fast" else _BALANCED_FACTOR if spec.preset == "balanced" else \
+        preset.steps * preset.batch_rays / (PRESETS["fast"].steps * PRESETS["fast"].batch_rays)
+    if spec.steps is not None:
+        factor *= spec.steps / preset.steps
+    return seconds * factor * math.sqrt(proto.size[0] * proto.size[1] / pixels), "default"
+
+
+def estimate_lines(specs: list[RunSpec], results_path: str | Path, workers: int = 1) -> list[str]:
+    """The time estimate printed before a suite starts: per (protocol, method, preset, K), the runs still to run x
+    the seconds of one (:func:`estimate_seconds`, measured where the results file has that run's peers), then the
+    total, divided by ``workers`` for the wall clock (concurrent fits share the machine: an upper bound on the
+    speed-up)."""
+    measured: dict[tuple, list[float]] = {}
+    for r in final_ok_lines(load_results(results_path)[0]):
+        if is_number(r.get("run_seconds")):
+            key = (r["scene"], r["protocol"], r["method"], preset_label(r), r["iterations"])
+            measured.setdefault(key, []).append(float(r["run_seconds"]))
+    todo, skipped = pending_specs(specs, results_path)
+    groups: dict[tuple, list[tuple[float, str]]] = {}
+    for spec in todo:
+        groups.setdefault((spec.protocol, spec.method, spec.preset, spec.iterations), []).append(
+            estimate_seconds(spec, measured))
+    out, total = [f"# estimate: {len(todo)} runs to run ({skipped} already finished)"], 0.0
+    for (protocol, method, preset, k), est in groups.items():
+        seconds = sum(s for s, _ in est)
+        total += seconds
+        sources = "/".join(sorted({src for _, src in est}))
+        out.append(f"#   {protocol} {method} {preset} K={k}: {len(est)} runs x ~{seconds / len(est):.0f} s ({sources})"
+                   f" = {_duration(seconds)}")
+    out.append(f"# total ~{_duration(total)} of fitting" + (f", ~{_duration(total / workers)} with {workers} workers"
+                                                             if workers > 1 else ""))
+    return out
+
+
+def _duration(seconds: float) -> str:
+    """``"1 h 05 min"``, ``"12 min"`` or ``"40 s"``."""
+    if seconds < 60:
+        return f"{seconds:.0f} s"
+    minutes = round(seconds / 60)
+    return f"{minutes // 60} h {minutes % 60:02d} min" if minutes >= 60 else f"{minutes} min"
 
 
 def run_benchmark(specs: list[RunSpec], executor, results_path: str | Path, cfg: RunnerConfig,
