@@ -7,7 +7,8 @@ Examples::
     senerf-bench run ... --ray-address auto          # same runs on an existing Ray cluster
     senerf-bench suite --data ../shared/data --out runs/suite [--full]   # every scene at hand, the paper's tables
     senerf-bench summarize bench/results.jsonl
-    senerf-bench report bench/results.jsonl --out BENCHMARKS-section.md
+    senerf-bench report bench/results.jsonl --out BENCHMARKS-section.md --figures bench/figures
+    senerf-bench report runs/suite/results.jsonl --brief --into README.md   # README's marked results section
     senerf-bench plot bench/results.jsonl --out-dir bench/plots
 """
 
@@ -26,9 +27,9 @@ from senerf.cliargs import (SEED_MAX, OneLineParser, argument_type, check_device
 from senerf.data.load import scene_root
 from senerf.errors import InputError
 
-from .plots import plot_frontier
+from .plots import plot_frontier, plot_paper_comparison
 from .protocols import METHODS, PRESETS, SUITE, SUITE_FULL, discover_scenes, expand_specs, parse_protocol
-from .report import make_report
+from .report import compare_to_paper, make_report
 from .results import load_results
 from .runner import RunnerConfig, dry_run_lines, estimate_lines, make_executor, run_benchmark
 from .summary import aggregate, final_iterations, format_table
@@ -64,12 +65,16 @@ def build_parser() -> argparse.ArgumentParser:
     summ.add_argument("--final", action="store_true", help="only each run's last iteration")
     summ.add_argument("--markdown", action="store_true")
 
-    rep = sub.add_parser("report", help="markdown section with the paper's numbers beside ours")
+    rep = sub.add_parser("report", help="markdown section with the paper's numbers beside ours, per scene")
     rep.add_argument("results")
     rep.add_argument("--out", default=None, help="write here (default: stdout)")
     rep.add_argument("--title", default="Benchmarks")
     rep.add_argument("--into", default=None, help="replace the text between the report markers of this markdown "
                                                   f"file ('{REPORT_BEGIN}' ... '{REPORT_END}')")
+    rep.add_argument("--brief", action="store_true", help="only the per-scene tables against the paper, with their "
+                                                          "provenance and the departures (README's form)")
+    rep.add_argument("--figures", default=None, metavar="DIR",
+                     help="also write a PNG per protocol and configuration: bars per scene, ours against the paper's")
 
     plot = sub.add_parser("plot", help="PNG frontier plots: PSNR vs seconds and vs peak memory")
     plot.add_argument("results")
@@ -216,7 +221,7 @@ def _cmd_report(args: argparse.Namespace, command: list[str]) -> int:
     records = _load(args.results)
     if args.out and Path(args.out).exists() and os.path.samefile(args.out, args.results):
         raise InputError(f"is {args.results}, which this command reads; choose another --out", file=args.out)
-    text = make_report(records, command, title=args.title)
+    text = make_report(records, command, title=args.title, brief=args.brief)
     document = None
     if args.into:
         with _os_errors(args.into, "--into", "read"):
@@ -231,6 +236,11 @@ def _cmd_report(args: argparse.Namespace, command: list[str]) -> int:
         with _os_errors(args.into, "--into"):
             atomic_write_text(args.into, document)
         print(f"updated the generated section of {args.into}")
+    if args.figures:
+        with _os_errors(args.figures, "--figures"):
+            for (protocol, config), rows in compare_to_paper(records).items():
+                name = f"paper_{protocol}_{config}".replace("@", "_at_").replace("=", "").replace(" ", "_")
+                print(f"wrote {plot_paper_comparison(rows, Path(args.figures) / (name + '.png'))}")
     return 0
 
 

@@ -115,7 +115,7 @@ def test_missing_scenes_and_folders_that_are_no_scene_are_refused(blender_factor
     assert main(["run", "--scenes", str(tmp_path / "missing"), "--out", str(tmp_path / "o")]) == 2
     assert _error(capsys) == f"{tmp_path / 'missing'}: scene folder not found"
     assert main(["run", "--scenes", str(tmp_path), "--out", str(tmp_path / "o")]) == 2
-    assert _error(capsys).startswith(f"{tmp_path}: not a Blender (transforms_train.json), LLFF (poses_bounds.npy) or DTU")
+    assert _error(capsys).startswith(f"{tmp_path}: not a Blender (transforms_train.json), LLFF (poses_bounds.npy)")
     small = blender_factory(tmp_path, name="lego400", side=400)
     assert main(["run", "--scenes", str(small), "--protocols", "synthetic-extreme3@800", "--out",
                  str(tmp_path / "o"), "--dry-run"]) == 2
@@ -261,3 +261,22 @@ def test_suite_refuses_a_data_folder_without_scenes(tmp_path, capsys):
     assert main(["suite", "--data", str(tmp_path), "--out", str(tmp_path / "o")]) == 2
     assert _error(capsys) == f"{tmp_path}: --data: no scene folders in nerf_synthetic/, nerf_llff_data/ or dtu/"
     assert not (tmp_path / "o").exists()
+
+
+def test_report_brief_into_a_marked_section_and_figures_per_protocol(ok_line, tmp_path, capsys):
+    results = tmp_path / "results.jsonl"
+    lines = [ok_line(run_key=f"{scene}{seed}", scene=scene, protocol=protocol, method="senerf", seed=seed,
+                     iterations=1, iteration=it, psnr=15.0 + seed + it)
+             for scene, protocol in (("lego", "synthetic-extreme3@100"), ("fern", "llff3@504x378"))
+             for seed in (0, 1) for it in (0, 1)]
+    results.write_text("".join(json.dumps(line) + "\n" for line in lines))
+    doc = tmp_path / "README.md"
+    doc.write_text(f"# senerf\n{REPORT_BEGIN}\nold\n{REPORT_END}\nrest\n")
+    assert main(["report", str(results), "--brief", "--into", str(doc), "--figures", str(tmp_path / "fig")]) == 0
+    text = doc.read_text()
+    assert text.startswith(f"# senerf\n{REPORT_BEGIN}\n") and text.endswith(f"{REPORT_END}\nrest\n")
+    assert "| fern | 2 | 15.50 ± 0.71 | 16.50 ± 0.71 | +1.00 ± 0.00 (p 0.000) | 18.22 -> 18.83 (+0.61) |" in text
+    assert "Final iteration" not in text and "--brief --into" in text
+    pngs = sorted(p.name for p in (tmp_path / "fig").glob("*.png"))
+    assert pngs == ["paper_llff3_at_504x378_fast_K1.png", "paper_synthetic-extreme3_at_100_fast_K1.png"]
+    assert all(iio.imread(tmp_path / "fig" / p).ndim == 3 for p in pngs)
