@@ -234,7 +234,7 @@ def test_suite_estimates_runs_every_scene_at_hand_and_resumes(data_tree, fake_fi
     assert lines[:5] == ["# estimate: 12 runs to run (0 already finished)",
                          "#   synthetic-extreme3@100 senerf fast K=1: 6 runs x ~89 s (default) = 9 min",
                          "#   llff3@504x378 senerf fast K=1: 3 runs x ~555 s (default) = 28 min",
-                         "#   dtu3@192 senerf fast K=1: 3 runs x ~145 s (default) = 7 min",
+                         "#   dtu3@192 senerf fast K=1: 3 runs x ~146 s (default) = 7 min",
                          "# total ~44 min of fitting"]
     assert lines[5] == "# 12 runs: 0 already finished, 12 to run"
     fits = [ln for ln in lines if ln.startswith("senerf-fit ")]
