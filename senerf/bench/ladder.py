@@ -15,8 +15,8 @@ from scipy import stats
 from .results import final_ok_lines
 from .summary import Stat, preset_label
 
-__all__ = ["LADDER_ALPHA", "LADDER_MIN_SEEDS", "paired_gain_p_value", "Paired", "preset_ladder", "method_contrasts",
-           "paired_markdown"]
+__all__ = ["LADDER_ALPHA", "LADDER_MIN_SEEDS", "paired_gain_p_value", "Paired", "pair_runs", "preset_ladder",
+           "method_contrasts", "paired_markdown"]
 
 LADDER_ALPHA = 0.05
 LADDER_MIN_SEEDS = 3
@@ -79,8 +79,9 @@ def _configurations(records: list[dict]) -> dict[tuple, dict[int, dict]]:
     return finals
 
 
-def _pair(group: tuple, a: tuple[str, dict], b: tuple[str, dict], alternative: str) -> Paired:
-    """Configuration ``a`` (label, seed -> line) against ``b`` in ``group`` (scene, protocol)."""
+def pair_runs(group: tuple, a: tuple[str, dict], b: tuple[str, dict], alternative: str) -> Paired:
+    """Configuration ``a`` (label, seed -> a line with ``psnr`` and ``seconds_cumulative``) against ``b`` in ``group``
+    (scene, protocol), over the seeds both have."""
     seeds = tuple(sorted(set(a[1]) & set(b[1])))
     diffs = [a[1][s]["psnr"] - b[1][s]["psnr"] for s in seeds]
     seconds = [float(np.mean([runs[s]["seconds_cumulative"] for s in seeds])) if seeds else math.nan
@@ -105,7 +106,7 @@ def preset_ladder(records: list[dict]) -> list[Paired]:
     for (scene, protocol, _), rungs in groups.items():
         order = sorted(rungs.items(), key=lambda kv: (np.mean([r["seconds_cumulative"] for r in kv[1].values()]),
                                                       kv[0]))
-        out += [_pair((scene, protocol), slower, faster, "greater") for i, slower in enumerate(order)
+        out += [pair_runs((scene, protocol), slower, faster, "greater") for i, slower in enumerate(order)
                 for faster in order[:i]]
     return out
 
@@ -120,7 +121,7 @@ def method_contrasts(records: list[dict], reference: str = "senerf") -> list[Pai
         ref_label = reference + label.removeprefix(method)
         ref = finals.get((scene, protocol, reference, ref_label))
         if method != reference and ref is not None:
-            out.append(_pair((scene, protocol), (label, runs), (ref_label, ref), "two-sided"))
+            out.append(pair_runs((scene, protocol), (label, runs), (ref_label, ref), "two-sided"))
     return out
 
 

@@ -1,9 +1,11 @@
-"""The frontier plot of a results file (matplotlib's Agg canvas; no global backend switch, no pyplot state)."""
+"""The plots of a results file: the frontier, and ours against the paper per scene (matplotlib's Agg canvas; no
+global backend switch, no pyplot state)."""
 
 from __future__ import annotations
 
 from collections import defaultdict
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 from matplotlib import colormaps
@@ -13,7 +15,10 @@ from matplotlib.ticker import LogLocator, NullFormatter, ScalarFormatter
 
 from .summary import PRESET_ORDER, Aggregate
 
-__all__ = ["plot_frontier"]
+if TYPE_CHECKING:
+    from .report import SceneComparison
+
+__all__ = ["plot_frontier", "plot_paper_comparison"]
 
 
 def plot_frontier(aggs: list[Aggregate], path: str | Path, title: str = "") -> Path:
@@ -66,6 +71,46 @@ def plot_frontier(aggs: list[Aggregate], path: str | Path, title: str = "") -> P
     if handles:
         fig.legend(handles, labels, loc="center left", bbox_to_anchor=(1.0, 0.5), fontsize=8, frameon=False)
     fig.suptitle(title or "PSNR vs cost per preset (dotted: self-training iterations)")
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    FigureCanvasAgg(fig)
+    fig.savefig(path, dpi=120, bbox_inches="tight", format="png")
+    return path
+
+
+def plot_paper_comparison(rows: list[SceneComparison], path: str | Path, title: str = "") -> Path:
+    """Bars per scene (and the mean row): our baseline and SE-NeRF PSNR (error bars: std over seeds) beside the
+    paper's K-Planes and SE-NeRF (K-Planes), hatched; a missing figure leaves its bar out.
+
+    Args:
+        rows: one table of :func:`senerf.bench.report.compare_to_paper`.
+        path: output PNG, written as given, its folder made.
+    """
+    fig = Figure(figsize=(max(5.0, 1.3 * len(rows) + 2.0), 4.0))
+    ax = fig.subplots()
+    x = np.arange(len(rows))
+    nan = float("nan")
+    bars = [("ours: baseline (teacher)", [r.baseline[0] for r in rows], "C0", ""),
+            ("ours: SE-NeRF", [r.senerf[0] for r in rows], "C1", ""),
+            ("paper: K-Planes", [r.paper[0] for r in rows], "C0", "//"),
+            ("paper: SE-NeRF (K-Planes)", [r.paper[1] for r in rows], "C1", "//")]
+    width = 0.8 / len(bars)
+    for i, (label, values, colour, hatch) in enumerate(bars):
+        if hatch:   # the paper's rows: one figure, no spread
+            heights = [nan if v is None or v.psnr is None else v.psnr for v in values]
+            errors = None
+        else:       # our Stats over seeds
+            heights = [nan if v.mean is None else v.mean for v in values]
+            errors = [v.std or 0.0 for v in values]
+        ax.bar(x + (i - 1.5) * width, heights, width, yerr=errors, capsize=3, label=label, color=colour,
+               alpha=0.45 if hatch else 0.9, hatch=hatch, edgecolor="0.3")
+    ax.set_xticks(x, [r.scene for r in rows])
+    ax.set_ylabel("test PSNR (dB)")
+    ax.grid(axis="y", alpha=0.3)
+    ax.legend(fontsize=8, loc="center left", bbox_to_anchor=(1.0, 0.5), frameon=False)
+    paper_res = sorted({p.resolution for r in rows for p in r.paper if p is not None})
+    ax.set_title(title or f"{rows[0].protocol}, {rows[0].config}: ours against the paper"
+                 + (f" (at {', '.join(paper_res)})" if paper_res else " (no published figures)"), fontsize=10)
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     FigureCanvasAgg(fig)

@@ -7,6 +7,7 @@ from __future__ import annotations
 import concurrent.futures as cf
 import contextlib
 import json
+import math
 import os
 import platform
 import shlex
@@ -19,13 +20,16 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable
 
+from senerf.config import PRESETS
 from senerf.errors import is_number
 
 from .protocols import RunSpec, parse_protocol
-from .results import append_lines, load_results, result_lines
+from .results import append_lines, final_ok_lines, load_results, result_lines
+from .summary import preset_label
 
 __all__ = ["RunnerConfig", "default_fit_command", "execute_run", "read_metrics", "RayExecutor",
-           "make_executor", "BenchOutcome", "pending_specs", "dry_run_lines", "run_benchmark", "git_commit"]
+           "make_executor", "BenchOutcome", "pending_specs", "dry_run_lines", "estimate_seconds", "estimate_lines",
+           "run_benchmark", "git_commit"]
 
 #: ``python -S -c _WRAPPER REPORT PROG ARGS...`` runs PROG and writes ``"MAXRSS EXITCODE"`` to REPORT: PROG's peak
 #: resident set size in KiB (``ru_maxrss`` from ``os.wait4``) and its exit code (``-N`` when signal N killed it).
@@ -234,6 +238,88 @@ def dry_run_lines(specs: list[RunSpec], results_path: str | Path, runs_dir: str 
     todo, skipped = pending_specs(specs, results_path)
     return ([f"# {skipped + len(todo)} runs: {skipped} already finished, {len(todo)} to run"]
             + [shlex.join(["senerf-fit", *spec.fit_args(Path(runs_dir) / spec.dirname())]) for spec in todo])
+
+
+#: Seconds of one ``senerf-fit`` process (wall clock, start-up and evaluation included, the machine to itself) at the
+#: fast preset (600 steps x 1024 rays), per scene kind, used where the results file has no run to go by: (reference
+#: pixels, teacher training, the teacher's other seconds, a student's training, its other seconds, its labelling per
+#: training view: the pseudo views' renders, features and reliability).
+#: - object: lego Extreme 100x100, benchmarks/results/lego-extreme3@100.jsonl (EPYC, 6 seeds, 200 test views):
+#:   baseline 37.7 s, SE-NeRF K=1 88.8 s (51.1 s a student); training 15.9 s (teacher) and 24.0 s (a student),
+#:   BENCHMARKS.md section 2 ("the fused Adam ..."); labelling 4 s a view ("whole fits phase by phase": 12.4 s over
+#:   3 iterations of 3 views).
+#: - forward_facing: fern 3 views 504x378, BENCHMARKS.md section 2 (Xeon-167, de22d79): 552 s of fitting, of it
+#:   training 279 s (1024 of the teacher's and 2688 of the student's rays a step: 106 s and 173 s), labelling 247 s
+#:   (82 s a view), evaluation 21 s (11 s each), + 8 s start-up.
+#: - dtu: scan24 3 views 192x192, BENCHMARKS.md "Unbounded scenes" (Xeon-167, ea6330b): 39 + 101 s of fitting, + 6 s
+#:   start-up; not broken down there: training taken as 33 s (teacher) and 50 s (student, 1.5x as lego's), labelling
+#:   15 s a view.
+_FAST_SECONDS = {"object": (100 * 100, 15.9, 21.8, 24.0, 15.1, 4.0),
+                 "forward_facing": (504 * 378, 106.0, 19.0, 173.0, 11.0, 82.0),
+                 "dtu": (192 * 192, 33.0, 12.0, 50.0, 6.0, 15.0)}
+#: balanced (1000 x 4096) over fast, training only, lego Extreme 100x100 (the same jsonl and figures): teacher
+#: 72.5 - 21.8 = 50.7 s against 15.9 s, a student 91.5 - 27.1 = 64.4 s against 24.0 s; other presets scale the
+#: training by their steps x rays a step against fast's.
+_BALANCED_TRAINING = 3.0
+
+
+def estimate_seconds(spec: RunSpec, measured: dict[tuple, list[float]] | None = None) -> tuple[float, str]:
+    """Estimated wall-clock seconds of one run and where the figure comes from.
+
+    ``"measured"``: the mean ``run_seconds`` of the finished runs with the same scene, protocol, method, preset label
+    and K in ``measured`` (keyed as :func:`estimate_lines` builds it).  Else ``"default"``: :data:`_FAST_SECONDS`
+    for the protocol's scene kind, the teacher plus K students; their training times the preset's factor and
+    ``--steps`` over the preset's steps; the whole times the square root of the pixels over the reference's (lego
+    fast 100x100 -> 400x400 took 61 -> 235 s, 3.9x for 16x the pixels, BENCHMARKS.md section 2).
+    """
+    key = (spec.scene, spec.protocol, spec.method, preset_label(vars(spec)), spec.iterations)
+    if measured and measured.get(key):
+        return sum(measured[key]) / len(measured[key]), "measured"
+    proto = parse_protocol(spec.protocol)
+    pixels, teacher, teacher_other, student, student_other, per_view = _FAST_SECONDS[proto.kind]
+    preset, fast = PRESETS[spec.preset], PRESETS["fast"]
+    factor = 1.0 if spec.preset == "fast" else _BALANCED_TRAINING if spec.preset == "balanced" else \
+        preset.steps * preset.batch_rays / (fast.steps * fast.batch_rays)
+    if spec.steps is not None:
+        factor *= spec.steps / preset.steps
+    seconds = (teacher + spec.iterations * student) * factor + teacher_other + spec.iterations * (
+        student_other + per_view * proto.n_views)
+    return seconds * math.sqrt(proto.size[0] * proto.size[1] / pixels), "default"
+
+
+def estimate_lines(specs: list[RunSpec], results_path: str | Path, workers: int = 1) -> list[str]:
+    """The time estimate printed before a suite starts: per (protocol, method, preset, K), the runs still to run x
+    the seconds of one (:func:`estimate_seconds`, measured where the results file has that run's peers), then the
+    total, divided by ``workers`` for the wall clock (concurrent fits share the machine: an upper bound on the
+    speed-up)."""
+    measured: dict[tuple, list[float]] = {}
+    for r in final_ok_lines(load_results(results_path)[0]):
+        if is_number(r.get("run_seconds")):
+            key = (r["scene"], r["protocol"], r["method"], preset_label(r), r["iterations"])
+            measured.setdefault(key, []).append(float(r["run_seconds"]))
+    todo, skipped = pending_specs(specs, results_path)
+    groups: dict[tuple, list[tuple[float, str]]] = {}
+    for spec in todo:
+        groups.setdefault((spec.protocol, spec.method, spec.preset, spec.iterations), []).append(
+            estimate_seconds(spec, measured))
+    out, total = [f"# estimate: {len(todo)} runs to run ({skipped} already finished)"], 0.0
+    for (protocol, method, preset, k), est in groups.items():
+        seconds = sum(s for s, _ in est)
+        total += seconds
+        sources = "/".join(sorted({src for _, src in est}))
+        out.append(f"#   {protocol} {method} {preset} K={k}: {len(est)} runs x ~{seconds / len(est):.0f} s ({sources})"
+                   f" = {_duration(seconds)}")
+    out.append(f"# total ~{_duration(total)} of fitting" + (f", ~{_duration(total / workers)} with {workers} workers"
+                                                             if workers > 1 else ""))
+    return out
+
+
+def _duration(seconds: float) -> str:
+    """``"1 h 05 min"``, ``"12 min"`` or ``"40 s"``."""
+    if seconds < 60:
+        return f"{seconds:.0f} s"
+    minutes = round(seconds / 60)
+    return f"{minutes // 60} h {minutes % 60:02d} min" if minutes >= 60 else f"{minutes} min"
 
 
 def run_benchmark(specs: list[RunSpec], executor, results_path: str | Path, cfg: RunnerConfig,

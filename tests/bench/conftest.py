@@ -37,15 +37,43 @@ def blender_factory():
     return make_blender_scene
 
 
-@pytest.fixture()
-def llff_scene(tmp_path: Path) -> Path:
-    """A folder that looks like an LLFF scene named ``fern`` (poses_bounds.npy records 4032x3024)."""
-    d = tmp_path / "fern"
-    d.mkdir()
+def make_llff_scene(root: Path, name: str = "fern") -> Path:
+    """A folder that looks like an LLFF scene (poses_bounds.npy records 4032x3024)."""
+    d = root / name
+    d.mkdir(parents=True)
     pb = np.zeros((20, 17))
     pb[:, 4], pb[:, 9], pb[:, 14] = 3024, 4032, 3260.5
     np.save(d / "poses_bounds.npy", pb)
     return d
+
+
+def make_dtu_scene(root: Path, name: str = "scan24") -> Path:
+    """A folder that looks like the DTU copies: a nerfstudio transforms.json of 49 frames, the first image 384x384."""
+    d = root / name
+    (d / "images").mkdir(parents=True)
+    frames = [{"file_path": f"images/{i:06d}.png"} for i in range(49)]
+    (d / "transforms.json").write_text(json.dumps({"frames": frames}))
+    Image.new("RGB", (384, 384)).save(d / "images" / "000000.png")
+    return d
+
+
+@pytest.fixture()
+def llff_scene(tmp_path: Path) -> Path:
+    """An LLFF-like scene named ``fern``."""
+    return make_llff_scene(tmp_path)
+
+
+@pytest.fixture()
+def data_tree(tmp_path: Path) -> Path:
+    """A data folder laid out as ``../shared/data``: Blender lego and mic, a Blender scene with no published Extreme
+    views (``mine``), LLFF fern, DTU scan24, and a folder under ``dtu/`` that is no scene."""
+    data = tmp_path / "data"
+    for name in ("mic", "lego", "mine"):
+        make_blender_scene(data / "nerf_synthetic", name)
+    make_llff_scene(data / "nerf_llff_data")
+    make_dtu_scene(data / "dtu")
+    (data / "dtu" / "notes").mkdir()
+    return data
 
 
 @pytest.fixture()

@@ -16,8 +16,12 @@ import sys
 import time
 from pathlib import Path
 
-#: The training views senerf-fit picks per --protocol (random8: any 8 of the train split).
-VIEWS = {"extreme": [0, 1, 51], "infonerf4": [26, 86, 2, 55], "random8": [3, 14, 15, 92, 65, 35, 89, 79]}
+#: The training views senerf-fit picks per --protocol (random8: any 8 of the train split; "PROTOCOL SCENE": a
+#: scene's own).
+VIEWS = {"extreme": [0, 1, 51], "infonerf4": [26, 86, 2, 55], "random8": [3, 14, 15, 92, 65, 35, 89, 79],
+         "dtu": [25, 22, 28, 40, 44, 48, 0, 8, 13], "extreme mic": [35, 65, 82]}
+#: The full-size sides the fit's --downscale divides: LLFF (H, W), NeRF Synthetic, the DTU copies.
+SIZES = {"llff": (3024, 4032), "dtu": (384, 384)}
 
 
 def write_atomic(path: Path, data: dict) -> None:
@@ -41,9 +45,10 @@ def main(argv):
     if os.environ.get("FAKE_FIT_PIDFILE"):
         Path(os.environ["FAKE_FIT_PIDFILE"]).write_text(str(os.getpid()))
     crash = {int(s) for s in os.environ.get("FAKE_FIT_CRASH_SEEDS", "").split(",") if s}
-    llff = a.protocol == "llff"
-    views = list(range(1, 1 + a.n_views)) if llff else VIEWS[a.protocol]
-    size = [round(3024 / a.downscale), round(4032 / a.downscale)] if llff else [round(800 / a.downscale)] * 2
+    views = list(range(1, 1 + a.n_views)) if a.protocol == "llff" else \
+        VIEWS.get(f"{a.protocol} {Path(a.scene).name}", VIEWS[a.protocol])
+    views = views[:a.n_views] if a.protocol == "dtu" else views
+    size = [round(side / a.downscale) for side in SIZES.get(a.protocol, (800, 800))]
     metrics = {"senerf_version": "fake", "command": ["senerf-fit", *argv], "config": {}, "train_views": views,
                "test_views": [0, 1, 2], "resolution": size, "iterations": [], "seconds_total": 0.0}
     for k in range(a.iterations + 1):

@@ -115,7 +115,7 @@ def test_missing_scenes_and_folders_that_are_no_scene_are_refused(blender_factor
     assert main(["run", "--scenes", str(tmp_path / "missing"), "--out", str(tmp_path / "o")]) == 2
     assert _error(capsys) == f"{tmp_path / 'missing'}: scene folder not found"
     assert main(["run", "--scenes", str(tmp_path), "--out", str(tmp_path / "o")]) == 2
-    assert _error(capsys).startswith(f"{tmp_path}: not a Blender (transforms_train.json) or LLFF")
+    assert _error(capsys).startswith(f"{tmp_path}: not a Blender (transforms_train.json), LLFF (poses_bounds.npy)")
     small = blender_factory(tmp_path, name="lego400", side=400)
     assert main(["run", "--scenes", str(small), "--protocols", "synthetic-extreme3@800", "--out",
                  str(tmp_path / "o"), "--dry-run"]) == 2
@@ -223,3 +223,60 @@ def test_an_interrupt_exits_130_at_once_naming_the_results_file(monkeypatch, ble
     assert main(_run_args(blender_scene, out, fake_fit_command)) == 130 and exits == [130]
     assert capsys.readouterr().err == (f"senerf-bench: interrupted; finished runs are in {out / 'results.jsonl'}, "
                                        "rerun to resume\n")
+
+
+def test_suite_estimates_runs_every_scene_at_hand_and_resumes(data_tree, fake_fit_command, tmp_path, capsys):
+    out = tmp_path / "suite"
+    args = ["suite", "--data", str(data_tree), "--out", str(out), "--fit-command", shlex.join(fake_fit_command)]
+    assert main([*args, "--dry-run"]) == 0
+    captured = capsys.readouterr()
+    lines = captured.out.splitlines()
+    assert lines[:5] == ["# estimate: 12 runs to run (0 already finished)",
+                         "#   synthetic-extreme3@100 senerf fast K=1: 6 runs x ~89 s (default) = 9 min",
+                         "#   llff3@504x378 senerf fast K=1: 3 runs x ~555 s (default) = 28 min",
+                         "#   dtu3@192 senerf fast K=1: 3 runs x ~146 s (default) = 7 min",
+                         "# total ~44 min of fitting"]
+    assert lines[5] == "# 12 runs: 0 already finished, 12 to run"
+    fits = [ln for ln in lines if ln.startswith("senerf-fit ")]
+    assert len(fits) == 12 and sum("--protocol dtu --n-views 3 --downscale 2 " in f for f in fits) == 3
+    assert "mine: left out, no published Extreme views" in captured.err and not (out / "results.jsonl").exists()
+
+    assert main([*args, "--workers", "2"]) == 0
+    records, _ = load_results(out / "results.jsonl")
+    assert {(r["scene"], r["protocol"]) for r in records} == {
+        ("lego", "synthetic-extreme3@100"), ("mic", "synthetic-extreme3@100"), ("fern", "llff3@504x378"),
+        ("scan24", "dtu3@192")}
+    assert {r["seed"] for r in records} == {0, 1, 2} and all(r["status"] == "ok" for r in records)
+    capsys.readouterr()
+    assert main([*args, "--full", "--dry-run"]) == 0          # resumed: the default suite's runs are finished
+    text = capsys.readouterr().out
+    assert text.startswith("# estimate: 18 runs to run (12 already finished)\n") and "(measured)" not in text
+    for protocol in ("synthetic-extreme3@200", "llff6@504x378", "llff9@504x378", "dtu6@192", "dtu9@192"):
+        assert f"#   {protocol} senerf fast K=1: " in text, protocol
+    assert main([*args, "--seeds", "0", "1", "2", "3", "--dry-run"]) == 0
+    assert "# 16 runs: 12 already finished, 4 to run" in capsys.readouterr().out
+
+
+def test_suite_refuses_a_data_folder_without_scenes(tmp_path, capsys):
+    assert main(["suite", "--data", str(tmp_path), "--out", str(tmp_path / "o")]) == 2
+    assert _error(capsys) == f"{tmp_path}: --data: no scene folders in nerf_synthetic/, nerf_llff_data/ or dtu/"
+    assert not (tmp_path / "o").exists()
+
+
+def test_report_brief_into_a_marked_section_and_figures_per_protocol(ok_line, tmp_path, capsys):
+    results = tmp_path / "results.jsonl"
+    lines = [ok_line(run_key=f"{scene}{seed}", scene=scene, protocol=protocol, method="senerf", seed=seed,
+                     iterations=1, iteration=it, psnr=15.0 + seed + it)
+             for scene, protocol in (("lego", "synthetic-extreme3@100"), ("fern", "llff3@504x378"))
+             for seed in (0, 1) for it in (0, 1)]
+    results.write_text("".join(json.dumps(line) + "\n" for line in lines))
+    doc = tmp_path / "README.md"
+    doc.write_text(f"# senerf\n{REPORT_BEGIN}\nold\n{REPORT_END}\nrest\n")
+    assert main(["report", str(results), "--brief", "--into", str(doc), "--figures", str(tmp_path / "fig")]) == 0
+    text = doc.read_text()
+    assert text.startswith(f"# senerf\n{REPORT_BEGIN}\n") and text.endswith(f"{REPORT_END}\nrest\n")
+    assert "| fern | 2 | 15.50 ± 0.71 | 16.50 ± 0.71 | +1.00 ± 0.00 (p 0.000) | 18.22 -> 18.83 (+0.61) |" in text
+    assert "Final iteration" not in text and "--brief --into" in text
+    pngs = sorted(p.name for p in (tmp_path / "fig").glob("*.png"))
+    assert pngs == ["paper_llff3_at_504x378_fast_K1.png", "paper_synthetic-extreme3_at_100_fast_K1.png"]
+    assert all(iio.imread(tmp_path / "fig" / p).ndim == 3 for p in pngs)

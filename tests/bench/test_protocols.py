@@ -9,7 +9,8 @@ import re
 import numpy as np
 import pytest
 
-from senerf.bench.protocols import METHODS, PRESETS, RunSpec, expand_specs, native_size, parse_protocol
+from senerf.bench.protocols import (METHODS, PRESETS, SUITE, RunSpec, discover_scenes, expand_specs, native_size,
+                                    parse_protocol)
 from senerf.config import PRESETS as FIT_PRESETS
 from senerf.errors import InputError
 
@@ -21,6 +22,8 @@ from senerf.errors import InputError
     ("synthetic-random8", "synthetic-random8@400", 2, (400, 400)),
     ("llff3@504x378", "llff3@504x378", 8, (378, 504)),
     ("llff9@1008x756", "llff9@1008x756", 4, (756, 1008)),
+    ("dtu3@192", "dtu3@192", 2, (192, 192)),
+    ("dtu9", "dtu9@384", 1, (384, 384)),
 ])
 def test_parse_protocol(name, canonical, downscale, size):
     p = parse_protocol(name)
@@ -29,7 +32,8 @@ def test_parse_protocol(name, canonical, downscale, size):
 
 @pytest.mark.parametrize("bad", ["extreme3@100", "synthetic-extreme3@300", "synthetic-extreme3@abc",
                                  "synthetic-extreme3@0", "llff3@500x378", "llff3@504x379", "llff3@100",
-                                 "llff3@8064x6048", "synthetic-extreme3@²", "llff3@5０4x378", "llff3@504x³"])
+                                 "llff3@8064x6048", "synthetic-extreme3@²", "llff3@5０4x378", "llff3@504x³",
+                                 "dtu3@100", "dtu3@504x378", "dtu12@192"])
 def test_parse_protocol_refuses_names_that_are_no_protocol(bad):
     with pytest.raises(InputError, match="^protocol: "):
         parse_protocol(bad)
@@ -40,6 +44,13 @@ def test_fit_flags_follow_the_contract():
     assert parse_protocol("synthetic-infonerf4@400").fit_flags(4.0) == ["--protocol", "infonerf4", "--downscale", "4"]
     assert parse_protocol("synthetic-random8").fit_flags() == ["--protocol", "random8", "--downscale", "2"]
     assert parse_protocol("llff6@504x378").fit_flags() == ["--protocol", "llff", "--n-views", "6", "--downscale", "8"]
+    assert parse_protocol("dtu6@192").fit_flags() == ["--protocol", "dtu", "--n-views", "6", "--downscale", "2"]
+
+
+def test_dtu_protocols_fix_the_first_views_of_dtus_list():
+    # the DTU protocol: train views 25, 22, 28, 40, 44, 48, 0, 8, 13 in that order, the first 3, 6 or 9
+    order = (25, 22, 28, 40, 44, 48, 0, 8, 13)
+    assert [tuple(parse_protocol(f"dtu{n}@192").views("scan24")) for n in (3, 6, 9)] == [order[:n] for n in (3, 6, 9)]
 
 
 def test_view_lists_are_reference_section_5():
@@ -154,6 +165,24 @@ def test_downscale_comes_from_the_files(tmp_path, llff_scene, blender_factory):
     (unchecked,) = expand_specs(["/nowhere/lego"], ["synthetic-extreme3@100"], ["baseline"], ["fast"], [0],
                                 check_scenes=False)   # a dry run without the data: the factor for 800x800 files
     assert unchecked.fit_args("/o")[3:5] == ["--downscale", "8"]
+
+
+def test_suite_discovers_every_scene_of_a_data_folder_and_notes_what_it_leaves_out(data_tree):
+    scenes, notes = discover_scenes(data_tree)
+    assert [str(s.relative_to(data_tree)) for s in scenes] == ["nerf_synthetic/lego", "nerf_synthetic/mic",
+                                                               "nerf_llff_data/fern", "dtu/scan24"]
+    assert sorted(n.split(": ", 1)[1].split(",")[0] for n in notes) == ["left out", "left out"]
+    assert any("mine: left out, no published Extreme views" in n for n in notes)
+    assert any("notes: left out, not a dtu scene folder" in n for n in notes)
+    specs = expand_specs([str(s) for s in scenes], list(SUITE), ["senerf"], ["fast"], [0, 1, 2])
+    assert sorted({(s.scene, s.protocol, s.downscale) for s in specs}) == [
+        ("fern", "llff3@504x378", 8.0), ("lego", "synthetic-extreme3@100", 8.0),
+        ("mic", "synthetic-extreme3@100", 8.0), ("scan24", "dtu3@192", 2.0)]
+    assert len(specs) == 12 and {s.seed for s in specs} == {0, 1, 2}
+    with pytest.raises(InputError, match="no scene folders in nerf_synthetic/, nerf_llff_data/ or dtu/"):
+        discover_scenes(data_tree / "dtu")
+    with pytest.raises(InputError, match="--data: data folder not found"):
+        discover_scenes(data_tree / "missing")
 
 
 def test_expand_refuses_unknown_names_and_folders(blender_scene, blender_factory, tmp_path):

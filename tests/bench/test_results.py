@@ -63,7 +63,8 @@ def test_append_and_load_skip_a_torn_line(tmp_path):
     ({"psnr": float("nan")}, "psnr: missing or not a finite number"),
     ({"ssim": float("inf")}, "ssim: missing or not a finite number"),
     ({"commit": None}, "commit: missing or not of type str"),
-    ({"protocol": "dtu3@400"}, "protocol: unknown protocol 'dtu3'; choose from synthetic-extreme3, "),
+    ({"protocol": "tanks3@400"}, "protocol: unknown protocol 'tanks3'; choose from synthetic-extreme3, "),
+    ({"protocol": "dtu3@400"}, "protocol: 'dtu3@400': resolution must be a divisor of 384"),
     ({"run_key": ["a"]}, "not a results line"), ({"status": "done"}, "not a results line"),
 ])
 def test_a_line_the_tables_cannot_read_is_skipped_naming_the_field(tmp_path, ok_line, change, problem):

@@ -15,8 +15,8 @@ import types
 import pytest
 
 from senerf.bench.results import load_results
-from senerf.bench.runner import (RayExecutor, RunnerConfig, default_fit_command, execute_run, git_commit,
-                                 make_executor, pending_specs, read_metrics, run_benchmark)
+from senerf.bench.runner import (RayExecutor, RunnerConfig, default_fit_command, estimate_lines, estimate_seconds,
+                                 execute_run, git_commit, make_executor, pending_specs, read_metrics, run_benchmark)
 from senerf.bench.protocols import RunSpec, expand_specs
 
 LEGO = RunSpec("/d/lego", "lego", "synthetic-extreme3@100", "senerf", "fast", 0, 2)
@@ -179,6 +179,39 @@ def test_the_fit_stops_when_its_driver_dies(blender_scene, fake_fit_command, tmp
             return
         time.sleep(0.1)
     pytest.fail("the fit outlived its driver by more than 10 s")
+
+
+def test_the_estimate_defaults_scale_with_iterations_preset_steps_and_pixels():
+    spec = lambda protocol="synthetic-extreme3@100", **kw: RunSpec(**{   # noqa: E731
+        "scene_dir": "/d/lego", "scene": "lego", "protocol": protocol, "method": "senerf", "preset": "fast", "seed": 0,
+        "iterations": 1, **kw})
+    one = estimate_seconds(spec())
+    assert one == (pytest.approx(88.8), "default")                   # lego fast: 37.7 + 51.1 s measured
+    assert estimate_seconds(spec(method="baseline", iterations=0))[0] == pytest.approx(37.7)
+    assert estimate_seconds(spec("synthetic-extreme3@200"))[0] == pytest.approx(2 * one[0])   # sqrt of 4x pixels
+    # steps and presets scale the training only (teacher 15.9 s, a student 24.0 s at fast), not evaluation or labels
+    assert estimate_seconds(spec(steps=300))[0] == pytest.approx(88.8 - (15.9 + 24.0) / 2)
+    assert estimate_seconds(spec(preset="balanced", iterations=3))[0] == pytest.approx(
+        3.0 * (15.9 + 3 * 24.0) + 21.8 + 3 * (15.1 + 4.0 * 3))            # 367 s; measured 347 s
+    assert estimate_seconds(spec("llff6@504x378"))[0] == pytest.approx(106 + 19 + 173 + 11 + 82.0 * 6)
+    assert estimate_seconds(spec("dtu3@96"))[0] == pytest.approx((33 + 12 + 50 + 6 + 15.0 * 3) / 2)
+
+
+def test_the_estimate_uses_the_results_files_own_seconds_and_counts_only_pending_runs(ok_line, blender_scene,
+                                                                                      llff_scene, tmp_path):
+    specs = expand_specs([str(blender_scene), str(llff_scene)], ["synthetic-extreme3@100", "llff3@504x378"],
+                         ["senerf"], ["fast"], [0, 1, 2])
+    results = tmp_path / "results.jsonl"
+    done = [ok_line(run_key=s.key(), method="senerf", seed=s.seed, iterations=1, iteration=1, run_seconds=secs)
+            for s, secs in zip(specs[:2], (100.0, 120.0))]
+    results.write_text("".join(json.dumps(line) + "\n" for line in done))
+    assert estimate_seconds(specs[2], {("lego", "synthetic-extreme3@100", "senerf", "fast", 1): [100.0, 120.0]}) == \
+        (110.0, "measured")
+    lines = estimate_lines(specs, results, workers=2)
+    assert lines[0] == "# estimate: 4 runs to run (2 already finished)"
+    assert lines[1] == "#   synthetic-extreme3@100 senerf fast K=1: 1 runs x ~110 s (measured) = 2 min"
+    assert lines[2] == "#   llff3@504x378 senerf fast K=1: 3 runs x ~555 s (default) = 28 min"
+    assert lines[3] == "# total ~30 min of fitting, ~15 min with 2 workers"
 
 
 def test_the_default_fit_command_is_senerf_fit_on_this_interpreter():
