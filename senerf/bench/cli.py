@@ -8,7 +8,7 @@ Examples::
     senerf-bench suite --data ../shared/data --out runs/suite [--full]   # every scene at hand, the paper's tables
     senerf-bench summarize bench/results.jsonl
     senerf-bench report bench/results.jsonl --out BENCHMARKS-section.md --figures bench/figures
-    senerf-bench report runs/suite/results.jsonl --brief --into README.md   # README's marked results section
+    senerf-bench report runs/suite/results.jsonl --readme --into README.md   # README's marked results section
     senerf-bench plot bench/results.jsonl --out-dir bench/plots
 """
 
@@ -29,7 +29,7 @@ from senerf.errors import InputError
 
 from .plots import plot_frontier, plot_paper_comparison
 from .protocols import METHODS, PRESETS, SUITE, SUITE_FULL, discover_scenes, expand_specs, parse_protocol
-from .report import compare_to_paper, make_report
+from .report import compare_to_paper, make_report, readme_markdown
 from .results import load_results
 from .runner import RunnerConfig, dry_run_lines, estimate_lines, make_executor, run_benchmark
 from .summary import aggregate, final_iterations, format_table
@@ -72,7 +72,9 @@ def build_parser() -> argparse.ArgumentParser:
     rep.add_argument("--into", default=None, help="replace the text between the report markers of this markdown "
                                                   f"file ('{REPORT_BEGIN}' ... '{REPORT_END}')")
     rep.add_argument("--brief", action="store_true", help="only the per-scene tables against the paper, with their "
-                                                          "provenance and the departures (README's form)")
+                                                          "provenance and the departures")
+    rep.add_argument("--readme", action="store_true", help="one PSNR table over every protocol and scene, ours and "
+                                                           "the paper's, under one provenance line (README's form)")
     rep.add_argument("--figures", default=None, metavar="DIR",
                      help="also write a PNG per protocol and configuration: bars per scene, ours against the paper's")
 
@@ -229,7 +231,10 @@ def _cmd_report(args: argparse.Namespace, command: list[str]) -> int:
     records = _load(args.results)
     if args.out and Path(args.out).exists() and os.path.samefile(args.out, args.results):
         raise InputError(f"is {args.results}, which this command reads; choose another --out", file=args.out)
-    text = make_report(records, command, title=args.title, brief=args.brief)
+    if args.brief and args.readme:
+        raise InputError("choose one of --brief and --readme", field="--readme")
+    text = (readme_markdown(records, command) if args.readme
+            else make_report(records, command, title=args.title, brief=args.brief))
     document = None
     if args.into:
         with _os_errors(args.into, "--into", "read"):

@@ -323,7 +323,7 @@ def _duration(seconds: float) -> str:
 
 
 def run_benchmark(specs: list[RunSpec], executor, results_path: str | Path, cfg: RunnerConfig,
-                  bench_command: list[str], commit: str | None = None, log: Callable[[str], None] = print,
+                  bench_command: list[str], commit: str | None = None, log: Callable[[str], None] | None = None,
                   run_fn: Callable[[RunSpec, RunnerConfig], dict] = execute_run) -> BenchOutcome:
     """Run every pending spec on ``executor`` and append the results (resumable).
 
@@ -333,10 +333,11 @@ def run_benchmark(specs: list[RunSpec], executor, results_path: str | Path, cfg:
         results_path: JSON-lines results file (created if absent).
         bench_command: the benchmark's own argv, recorded on every line.
         commit: code version to record (default: :func:`git_commit` of the senerf checkout).
-        log: progress sink, one line per event.
+        log: progress sink, one line per event (default: print, flushed, so a log file follows the runs).
         run_fn: what executes one run (default :func:`execute_run`; must be picklable for Ray).
     """
     commit = commit if commit is not None else git_commit()
+    log = log or (lambda line: print(line, flush=True))
     todo, skipped = pending_specs(specs, results_path)
     log(f"{skipped + len(todo)} runs: {skipped} already finished, {len(todo)} to run")
     futures = {executor.submit(run_fn, spec, cfg): spec for spec in todo}
@@ -349,14 +350,15 @@ def run_benchmark(specs: list[RunSpec], executor, results_path: str | Path, cfg:
             outcome = {"status": "failed", "error": f"worker lost: {type(exc).__name__}: "
                                                     f"{' '.join(str(exc).split())[:300]}"}
         append_lines(results_path, result_lines(spec, outcome, commit, bench_command))
+        done = f"[{ok + failed + 1}/{len(todo)}]"
         if outcome["status"] == "ok":
             ok += 1
             mib = outcome["peak_memory_mib"]
-            log(f"ok      {spec.key()}  PSNR {outcome['metrics']['iterations'][-1]['psnr']:.2f}  "
+            log(f"{done} ok      {spec.key()}  PSNR {outcome['metrics']['iterations'][-1]['psnr']:.2f}  "
                 f"{outcome['run_seconds']:.0f} s  " + ("memory not measured" if mib is None else f"{mib:.0f} MiB"))
         else:
             failed += 1
-            log(f"FAILED  {spec.key()}  {outcome['error']}")
+            log(f"{done} FAILED  {spec.key()}  {outcome['error']}")
     return BenchOutcome(skipped, ok, failed)
 
 

@@ -151,7 +151,7 @@ def test_the_driver_logs_each_run_and_a_memory_it_could_not_measure(tmp_path):
         run_benchmark([spec, spec], ex, tmp_path / "r.jsonl", RunnerConfig(str(tmp_path / "runs")), ["x"],
                       commit="c", log=lines.append, run_fn=lambda s, c: outcome)
     assert lines == ["1 runs: 0 already finished, 1 to run",
-                     f"ok      {spec.key()}  PSNR 20.00  1 s  memory not measured"]
+                     f"[1/1] ok      {spec.key()}  PSNR 20.00  1 s  memory not measured"]
 
 
 def test_the_fit_stops_when_its_driver_dies(blender_scene, fake_fit_command, tmp_path):
