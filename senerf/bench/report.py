@@ -195,6 +195,14 @@ def _paper_pair(protocol: str, scenes: list[str]) -> tuple[PaperRow | None, Pape
     return out[0], out[1]
 
 
+def _gain_text(gain: Paired, p_label: str = "") -> str:
+    """``"+0.60 ± 0.10 (p 0.009)"``, ``"+0.60 (n=1)"`` or ``"-"``: a paired gain and its test, as tables print it."""
+    d = gain.diff
+    if d.mean is None:
+        return "-"
+    return f"{d.mean:+.2f}" + (" (n=1)" if d.std is None else f" ± {d.std:.2f} ({p_label}{gain.p_value:.3f})")
+
+
 def comparison_markdown(rows: list[SceneComparison]) -> list[str]:
     """Markdown lines of one per-scene table (:func:`compare_to_paper`'s rows of one protocol and configuration)."""
     out = [(f"Per scene, {rows[0].config} (baseline: each run's teacher; gain: SE-NeRF - baseline PSNR paired by "
@@ -202,9 +210,7 @@ def comparison_markdown(rows: list[SceneComparison]) -> list[str]:
            ("| scene | seeds | PSNR baseline | PSNR SE-NeRF | gain (p) | paper PSNR | SSIM baseline | SSIM SE-NeRF | "
             "paper SSIM | LPIPS baseline | LPIPS SE-NeRF | paper LPIPS |"), "|" + "---|" * 12]
     for r in rows:
-        d = r.gain.diff
-        gain = "-" if d.mean is None else f"{d.mean:+.2f}" + (" (n=1)" if d.std is None else (
-            f" ± {d.std:.2f} (p {r.gain.p_value:.3f})"))
+        gain = _gain_text(r.gain, "p ")
         paper = []
         for i, m in enumerate(("psnr", "ssim", "lpips")):
             values = [None if p is None else getattr(p, m) for p in r.paper]
@@ -232,9 +238,7 @@ def readme_markdown(records: list[dict], report_command: list[str]) -> str:
            "|---|---|---|---|---|---|---|---|"]
     for (protocol, config), rows in compare_to_paper(records).items():
         for r in rows:
-            d = r.gain.diff
-            gain = "-" if d.mean is None else f"{d.mean:+.2f}" + (" (n=1)" if d.std is None else (
-                f" ± {d.std:.2f} ({r.gain.p_value:.3f})"))
+            gain = _gain_text(r.gain)
             paper = ("-" if None in r.paper or r.paper[0].psnr is None or r.paper[1].psnr is None else
                      f"{r.paper[0].psnr:.2f} -> {r.paper[1].psnr:.2f}")
             fit = "-" if r.scene == "mean" or r.seconds.mean is None else f"{r.seconds.mean:.0f} s"
