@@ -133,7 +133,7 @@ def test_help_names_every_output_and_the_presets(capsys):
     assert main(["--help"]) == 0
     text = " ".join(capsys.readouterr().out.split())
     for name in ("summary.png", "metrics.json", "iter_K/test/", "iter_K/pseudo/", "run.json", "checkpoints/",
-                 "fast: 600 steps x 1024 rays", "balanced: 1000 steps x 4096 rays"):
+                 "fast: 600 steps x 1024 rays", "balanced: 3000 steps x 1024 rays"):
         assert name in text, name
 
 

@@ -1,4 +1,5 @@
-"""Paired comparisons over seeds: does a slower preset buy PSNR, does a method differ from SE-NeRF (no torch import).
+"""Paired comparisons over seeds: does a slower preset buy PSNR, is a configuration on the speed/accuracy frontier,
+does a method differ from SE-NeRF (no torch import).
 
 Seeds pair runs that share the initialisation and the ray order, which removes part of the seed-to-seed spread.
 """
@@ -12,11 +13,11 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import stats
 
-from .results import final_ok_lines
+from .results import final_ok_lines, latest_ok_lines
 from .summary import Stat, preset_label
 
 __all__ = ["LADDER_ALPHA", "LADDER_MIN_SEEDS", "paired_gain_p_value", "Paired", "pair_runs", "preset_ladder",
-           "method_contrasts", "paired_markdown"]
+           "Rung", "frontier", "frontier_markdown", "method_contrasts", "paired_markdown"]
 
 LADDER_ALPHA = 0.05
 LADDER_MIN_SEEDS = 3
@@ -108,6 +109,69 @@ def preset_ladder(records: list[dict]) -> list[Paired]:
                                                       kv[0]))
         out += [pair_runs((scene, protocol), slower, faster, "greater") for i, slower in enumerate(order)
                 for faster in order[:i]]
+    return out
+
+
+@dataclass(frozen=True)
+class Rung:
+    """One configuration of a (scene, protocol) on the speed/accuracy plane.
+
+    Attributes:
+        scene, protocol: the group.
+        config: ``"senerf balanced 3000x1024 K=1"``, or ``"baseline fast 600x1024 K=0"`` for a teacher alone.
+        seeds: its seeds; seconds: mean fitting seconds over them; psnr: :class:`Stat` of the final PSNR.
+        beaten_by: every faster configuration measurably better than this one (:class:`Paired`, ``a`` the faster);
+            empty: on the measured frontier.
+    """
+
+    scene: str
+    protocol: str
+    config: str
+    seeds: tuple[int, ...]
+    seconds: float
+    psnr: Stat
+    beaten_by: tuple[Paired, ...]
+
+
+def frontier(records: list[dict]) -> list[Rung]:
+    """Every measured configuration of each (scene, protocol), whether a faster one is measurably better.
+
+    The configurations are the final iterations of every method and preset label (what ``senerf-fit`` gives) and
+    the teachers of the self-training runs (iteration 0 is the baseline fit at the same schedule and seed, so it
+    is a configuration a user can run: ``--iterations 0``).  A configuration is *beaten* by a faster one (mean
+    seconds over its seeds) when the faster one's PSNR is higher, paired over common seeds, one-sided
+    ``p <`` :data:`LADDER_ALPHA` with at least :data:`LADDER_MIN_SEEDS` pairs.  Sorted by group, then seconds.
+    """
+    groups: dict[tuple, dict[str, dict[int, dict]]] = defaultdict(dict)
+    for (scene, protocol, _, label), runs in _configurations(records).items():
+        groups[(scene, protocol)][label] = runs
+    for r in latest_ok_lines(records):
+        if r["iteration"] == 0:
+            groups[(r["scene"], r["protocol"])].setdefault(f"baseline {preset_label(r)} K=0", {})[r["seed"]] = r
+    out = []
+    for group, configs in sorted(groups.items()):
+        seconds = {label: float(np.mean([r["seconds_cumulative"] for r in runs.values()]))
+                   for label, runs in configs.items()}
+        for label, runs in configs.items():
+            beaten = [pair_runs(group, (other, configs[other]), (label, runs), "greater")
+                      for other in sorted(configs, key=seconds.get) if seconds[other] < seconds[label]]
+            out.append(Rung(*group, label, tuple(sorted(runs)), seconds[label],
+                            Stat.of([r["psnr"] for r in runs.values()]), tuple(p for p in beaten if p.measurable)))
+    return sorted(out, key=lambda r: (r.scene, r.protocol, r.seconds, r.config))
+
+
+def frontier_markdown(rungs: list[Rung]) -> list[str]:
+    """Markdown lines: what is checked, then one row per :class:`Rung` (empty list when there are none)."""
+    if not rungs:
+        return []
+    out = ["", "The speed/accuracy frontier: every configuration (K=0: a teacher alone) and each faster one that is "
+           f"measurably better (paired over seeds, one-sided p < {LADDER_ALPHA:g}, at least {LADDER_MIN_SEEDS} "
+           "pairs); none: on the frontier.", "",
+           "| scene | configuration | seeds | seconds | PSNR | faster and measurably better |", "|" + "---|" * 6]
+    for r in rungs:
+        beaten = "; ".join(f"{p.a} ({p.a_seconds:.0f} s, {p.diff.text(2)} dB, p {p.p_value:.3f})"
+                           for p in r.beaten_by) or "none"
+        out.append(f"| {r.scene} | {r.config} | {len(r.seeds)} | {r.seconds:.0f} | {r.psnr.text(2)} | {beaten} |")
     return out
 
 

@@ -25,7 +25,8 @@ def plot_frontier(aggs: list[Aggregate], path: str | Path, title: str = "") -> P
     """PSNR vs cumulative fit seconds (left) and vs peak memory MiB (right); error bars = std over seeds.
 
     Per method (and K: ``"senerf K=3"``), a solid line joins the final iterations of the presets (fast ->
-    balanced); on the left, a dotted line per preset also traces its self-training iterations (0 = teacher).
+    balanced); on the left, a dotted line per preset also traces its self-training iterations from its teacher (a
+    hollow marker, labelled ``K=0``).
     Memory is a whole-run figure, so the right panel shows final iterations only (runs whose memory was not
     measured are left out).  The legend sits to the right of the panels, where it hides no data.
 
@@ -42,8 +43,11 @@ def plot_frontier(aggs: list[Aggregate], path: str | Path, title: str = "") -> P
     for (scene, protocol, method, preset), group in runs.items():
         group.sort(key=lambda a: a.iteration)
         by_method[(scene, protocol, method)].append(group[-1])
-        if len(group) > 1:
+        if len(group) > 1:   # the iterations, from the teacher (hollow: a configuration too, --iterations 0)
             ax_t.plot([a.seconds.mean for a in group], [a.psnr.mean for a in group], ":", color="0.5", lw=1)
+            ax_t.plot(group[0].seconds.mean, group[0].psnr.mean, "o", mfc="none", color="0.4", ms=6)
+            ax_t.annotate(f"{preset} K=0", (group[0].seconds.mean, group[0].psnr.mean), textcoords="offset points",
+                          xytext=(4, -10), fontsize=7, color="0.4")
     one_group = len({k[:2] for k in by_method}) == 1
     n = len(by_method)   # matplotlib's 10-colour cycle, evenly spaced 'turbo' colours beyond: no two alike
     colours = [f"C{i}" for i in range(n)] if n <= 10 else [colormaps["turbo"](x) for x in np.linspace(0.0, 1.0, n)]
@@ -59,6 +63,7 @@ def plot_frontier(aggs: list[Aggregate], path: str | Path, title: str = "") -> P
                 for a, x, y in zip(shown, xs, ys):
                     ax.annotate(a.preset, (x, y), textcoords="offset points", xytext=(4, 4), fontsize=8)
     ax_t.set_xscale("log")
+    ax_t.margins(x=0.15)   # room for the labels of the rightmost points
     ax_t.xaxis.set_major_locator(LogLocator(base=10.0, subs=(1.0, 2.0, 5.0)))   # 20, 50, 100, 200, 500 s ...
     ax_t.xaxis.set_major_formatter(ScalarFormatter())   # ... as plain numbers, not 2 x 10^1
     ax_t.xaxis.set_minor_formatter(NullFormatter())

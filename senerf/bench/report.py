@@ -12,10 +12,10 @@ import numpy as np
 
 from senerf.config import PRESETS
 
-from .ladder import Paired, method_contrasts, pair_runs, paired_markdown, preset_ladder
+from .ladder import Paired, frontier, frontier_markdown, method_contrasts, pair_runs, paired_markdown, preset_ladder
 from .protocols import parse_protocol
 from .results import latest_ok_lines
-from .summary import Aggregate, Stat, aggregate, final_iterations, format_table, preset_label
+from .summary import Aggregate, Stat, aggregate, final_iterations, format_table, preset_label, preset_name
 
 __all__ = ["PaperRow", "PAPER_NUMBERS", "paper_rows", "SceneComparison", "compare_to_paper", "comparison_markdown",
            "departures", "make_report", "readme_markdown"]
@@ -261,10 +261,12 @@ def departures(records: list[dict]) -> list[str]:
         out.append(f"- **{protocol}**: ours {proto.size[1]}x{proto.size[0]}, the paper's "
                    + (", ".join(paper_res) if paper_res else "(it publishes no figures for this protocol)") + ".")
     for label in sorted({preset_label(r) for r in ok}):
-        preset = PRESETS.get(label.split("+")[0])
-        steps = next(r.get("steps") for r in ok if preset_label(r) == label) or (preset.steps if preset else "?")
+        line = next(r for r in ok if preset_label(r) == label)
+        preset = PRESETS.get(preset_name(label))   # a line without its schedule: the preset as defined now
+        steps, rays = (line["schedule"].split("x") if line.get("schedule") else
+                       (line.get("steps") or (preset.steps if preset else "?"), preset.batch_rays if preset else "?"))
         ks = sorted({r["iterations"] for r in ok if preset_label(r) == label and r["method"] != "baseline"})
-        out.append(f"- **Budget, {label}**: each field {steps} steps x {preset.batch_rays if preset else '?'} rays, "
+        out.append(f"- **Budget, {label}**: each field {steps} steps x {rays} rays, "
                    f"K = {', '.join(map(str, ks)) or '0'} self-training iteration(s), on the machines named above; "
                    "the paper trains K-Planes 20 GPU-minutes an iteration (NeRF Synthetic; 60 on LLFF) on an RTX "
                    "3090, about 4 iterations.")
@@ -327,7 +329,9 @@ def _protocol_block(protocol: str, lines: list[dict], aggs: list[Aggregate], tab
     paper = ["; ".join(_paper_text(r) for r in paper_rows(proto.family, a.scene, a.method)) or "-"
              for a in finals]   # published rows are "baseline", "senerf" or "peer": ablations have none
     out += ["", "Final iteration of each run:", "", format_table(finals, True, ("paper (PSNR / SSIM / LPIPS)", paper))]
-    out += paired_markdown(preset_ladder(lines)) + paired_markdown(method_contrasts(lines), ladder=False)
+    ladder = preset_ladder(lines)   # more than one rung: the frontier too
+    out += paired_markdown(ladder) + (frontier_markdown(frontier(lines)) if ladder else [])
+    out += paired_markdown(method_contrasts(lines), ladder=False)
     selftrain = [a for a in aggs if a.iterations > 0]
     if selftrain:
         out += ["", "Per self-training iteration (0 = teacher; seconds cumulative):", "", format_table(selftrain, True)]

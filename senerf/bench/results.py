@@ -8,6 +8,7 @@ results line.  A run is finished when the file holds an ``"ok"`` line with its k
 ``scene``           scene name; ``protocol`` (``"synthetic-extreme3@100"``, a known one); ``resolution`` [H, W]
 ``views``           training-view indices (from metrics.json); ``test_views``: the test views
 ``method``          method name; ``preset``; ``seed``; ``iterations`` (K requested); ``steps``; ``device``
+``schedule``        what each field trained, ``"600x1024"`` (steps x rays a step, from metrics.json)
 ``iteration``       0 = teacher/baseline, 1.. = students (None on failed lines)
 ``psnr`` ``ssim``   floats (test-set means, dB and [-1, 1])
 ``lpips`` ``avg``   float, or ``"unavailable"`` (no LPIPS weights); ``reliable_fraction``: float or None
@@ -59,8 +60,9 @@ def result_lines(spec: RunSpec, outcome: dict, commit: str, bench_command: list[
         return [{**common, "iteration": None, "error": outcome["error"], "returncode": outcome.get("returncode"),
                  "log_tail": outcome.get("log_tail", "")}]
     metrics = outcome["metrics"]
+    train = metrics["config"]["train"]
     common.update(resolution=metrics["resolution"], views=metrics["train_views"], test_views=metrics.get("test_views"),
-                  senerf_version=metrics.get("senerf_version"))
+                  senerf_version=metrics.get("senerf_version"), schedule=f"{train['steps']}x{train['batch_rays']}")
     lines, cumulative = [], 0.0
     for it in sorted(metrics["iterations"], key=lambda d: d["iteration"]):
         cumulative += float(it["seconds"])

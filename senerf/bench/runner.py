@@ -257,10 +257,14 @@ def dry_run_lines(specs: list[RunSpec], results_path: str | Path, runs_dir: str 
 _FAST_SECONDS = {"object": (100 * 100, 15.9, 21.8, 24.0, 15.1, 4.0),
                  "forward_facing": (504 * 378, 106.0, 19.0, 173.0, 11.0, 82.0),
                  "dtu": (192 * 192, 33.0, 12.0, 50.0, 6.0, 15.0)}
-#: balanced (1000 x 4096) over fast, training only, lego Extreme 100x100 (the same jsonl and figures): teacher
-#: 72.5 - 21.8 = 50.7 s against 15.9 s, a student 91.5 - 27.1 = 64.4 s against 24.0 s; other presets scale the
-#: training by their steps x rays a step against fast's.
-_BALANCED_TRAINING = 3.0
+
+
+def _estimate_key(run: dict) -> tuple:
+    """(scene, protocol, method, preset label with the schedule, K) of a results line or a RunSpec's ``vars``: a
+    line without its ``schedule`` is taken to have trained its preset as defined now (an estimate only)."""
+    preset = PRESETS.get(run["preset"])
+    schedule = run.get("schedule") or (preset and f"{run.get('steps') or preset.steps}x{preset.batch_rays}")
+    return run["scene"], run["protocol"], run["method"], preset_label({**run, "schedule": schedule}), run["iterations"]
 
 
 def estimate_seconds(spec: RunSpec, measured: dict[tuple, list[float]] | None = None) -> tuple[float, str]:
@@ -268,20 +272,17 @@ def estimate_seconds(spec: RunSpec, measured: dict[tuple, list[float]] | None = 
 
     ``"measured"``: the mean ``run_seconds`` of the finished runs with the same scene, protocol, method, preset label
     and K in ``measured`` (keyed as :func:`estimate_lines` builds it).  Else ``"default"``: :data:`_FAST_SECONDS`
-    for the protocol's scene kind, the teacher plus K students; their training times the preset's factor and
-    ``--steps`` over the preset's steps; the whole times the square root of the pixels over the reference's (lego
+    for the protocol's scene kind, the teacher plus K students; their training times the run's steps x rays
+    over fast's; the whole times the square root of the pixels over the reference's (lego
     fast 100x100 -> 400x400 took 61 -> 235 s, 3.9x for 16x the pixels, BENCHMARKS.md section 2).
     """
-    key = (spec.scene, spec.protocol, spec.method, preset_label(vars(spec)), spec.iterations)
+    key = _estimate_key(vars(spec))
     if measured and measured.get(key):
         return sum(measured[key]) / len(measured[key]), "measured"
     proto = parse_protocol(spec.protocol)
     pixels, teacher, teacher_other, student, student_other, per_view = _FAST_SECONDS[proto.kind]
     preset, fast = PRESETS[spec.preset], PRESETS["fast"]
-    factor = 1.0 if spec.preset == "fast" else _BALANCED_TRAINING if spec.preset == "balanced" else \
-        preset.steps * preset.batch_rays / (fast.steps * fast.batch_rays)
-    if spec.steps is not None:
-        factor *= spec.steps / preset.steps
+    factor = (spec.steps or preset.steps) * preset.batch_rays / (fast.steps * fast.batch_rays)
     seconds = (teacher + spec.iterations * student) * factor + teacher_other + spec.iterations * (
         student_other + per_view * proto.n_views)
     return seconds * math.sqrt(proto.size[0] * proto.size[1] / pixels), "default"
@@ -295,7 +296,7 @@ def estimate_lines(specs: list[RunSpec], results_path: str | Path, workers: int 
     measured: dict[tuple, list[float]] = {}
     for r in final_ok_lines(load_results(results_path)[0]):
         if is_number(r.get("run_seconds")):
-            key = (r["scene"], r["protocol"], r["method"], preset_label(r), r["iterations"])
+            key = _estimate_key(r)
             measured.setdefault(key, []).append(float(r["run_seconds"]))
     todo, skipped = pending_specs(specs, results_path)
     groups: dict[tuple, list[tuple[float, str]]] = {}

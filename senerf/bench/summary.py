@@ -12,7 +12,8 @@ from senerf.errors import is_number
 
 from .results import latest_ok_lines
 
-__all__ = ["Stat", "Aggregate", "aggregate", "final_iterations", "format_table", "preset_label", "PRESET_ORDER"]
+__all__ = ["Stat", "Aggregate", "aggregate", "final_iterations", "format_table", "preset_label", "preset_name",
+           "PRESET_ORDER"]
 
 #: Display order of preset names (cheapest first; other names after them).
 PRESET_ORDER = {"fast": 0, "balanced": 1}
@@ -76,14 +77,22 @@ class Aggregate:
 
 
 def preset_label(line: dict) -> str:
-    """The preset as reported: ``"fast"``, or ``"fast+steps20"`` / ``"fast+cuda"`` when a run overrides the
-    preset's steps or runs on a GPU, so different experiments never share a row."""
+    """The preset as reported, with the schedule it trained where the line records one (``"fast 600x1024"``:
+    steps x rays a step, so a preset redefined between runs never shares a row), else ``"fast"`` or
+    ``"fast+steps20"`` when the run overrides the preset's steps; ``"+cuda"`` when it ran on a GPU."""
     label = str(line["preset"])
-    if line.get("steps") is not None:
+    if line.get("schedule"):
+        label += f" {line['schedule']}"
+    elif line.get("steps") is not None:
         label += f"+steps{line['steps']}"
     if line.get("device", "cpu") != "cpu":
         label += f"+{line['device']}"
     return label
+
+
+def preset_name(label: str) -> str:
+    """The preset's name in a :func:`preset_label`: ``"fast"`` of ``"fast 600x1024+cuda"``."""
+    return label.split("+")[0].split(" ")[0]
 
 
 def aggregate(records: list[dict]) -> list[Aggregate]:
@@ -96,7 +105,7 @@ def aggregate(records: list[dict]) -> list[Aggregate]:
     for r in latest_ok_lines(records):
         groups[(r["scene"], r["protocol"], r["method"], preset_label(r), r["iterations"], r["iteration"])].append(r)
     out = []
-    for key in sorted(groups, key=lambda k: (*k[:3], PRESET_ORDER.get(k[3].split("+")[0], len(PRESET_ORDER)), *k[3:])):
+    for key in sorted(groups, key=lambda k: (*k[:3], PRESET_ORDER.get(preset_name(k[3]), len(PRESET_ORDER)), *k[3:])):
         rows = groups[key]
         psnr, ssim, lpips, avg, seconds, memory = (Stat.of([r.get(m) for r in rows]) for m in _METRICS)
         out.append(Aggregate(*key, tuple(sorted(r["seed"] for r in rows)), psnr, ssim, lpips, avg, seconds, memory))

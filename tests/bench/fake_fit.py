@@ -16,6 +16,8 @@ import sys
 import time
 from pathlib import Path
 
+from senerf.config import PRESETS
+
 #: The training views senerf-fit picks per --protocol (random8: any 8 of the train split; "PROTOCOL SCENE": a
 #: scene's own).
 VIEWS = {"extreme": [0, 1, 51], "infonerf4": [26, 86, 2, 55], "random8": [3, 14, 15, 92, 65, 35, 89, 79],
@@ -39,6 +41,8 @@ def main(argv):
     p.add_argument("--iterations", type=int, default=3)
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--out", required=True)
+    p.add_argument("--preset", choices=tuple(PRESETS), default="balanced")
+    p.add_argument("--steps", type=int)
     a, _ = p.parse_known_args(argv)   # the methods' and presets' flags are accepted and ignored
     out = Path(a.out)
     out.mkdir(parents=True, exist_ok=True)
@@ -49,7 +53,9 @@ def main(argv):
         VIEWS.get(f"{a.protocol} {Path(a.scene).name}", VIEWS[a.protocol])
     views = views[:a.n_views] if a.protocol == "dtu" else views
     size = [round(side / a.downscale) for side in SIZES.get(a.protocol, (800, 800))]
-    metrics = {"senerf_version": "fake", "command": ["senerf-fit", *argv], "config": {}, "train_views": views,
+    metrics = {"senerf_version": "fake", "command": ["senerf-fit", *argv], "train_views": views,
+               "config": {"train": {"steps": a.steps or PRESETS[a.preset].steps,
+                                    "batch_rays": PRESETS[a.preset].batch_rays}},
                "test_views": [0, 1, 2], "resolution": size, "iterations": [], "seconds_total": 0.0}
     for k in range(a.iterations + 1):
         time.sleep(float(os.environ.get("FAKE_FIT_SLEEP", "0")))

@@ -113,3 +113,30 @@ def test_method_contrasts_pair_ablations_with_the_reference():
     assert c.p_value == pytest.approx(2 * _t_sf_2dof(2 * math.sqrt(3)), rel=1e-9)
     assert "| lego | senerf-no-empty fast K=1 | senerf fast K=1 | 3 | 80 / 80 | -2.00 ± 1.00 | 0.074 | no |" in (
         "\n".join(paired_markdown([c], ladder=False)))
+
+
+def test_frontier_names_each_faster_configuration_that_is_measurably_better():
+    # seeds 0-3: the teacher (iteration 0, 30 s) beats its own student (K=1, 80 s) by 1.0-1.3 dB on every seed;
+    # quality (200 s) beats fast's student by 1.0-1.3 dB but never the teacher, which is faster and worse by 0.0
+    records = []
+    for s, d in enumerate([1.0, 1.1, 1.3, 1.2]):
+        records += [_line(s, "fast", 18.0 + d, 30, iteration=0), _line(s, "fast", 18.0, 80),
+                    _line(s, "quality", 18.0 + d, 200)]
+    rungs = ladder.frontier(records)
+    assert [(r.config, r.seconds) for r in rungs] == [("baseline fast K=0", 30.0), ("senerf fast K=1", 80.0),
+                                                       ("senerf quality K=1", 200.0)]
+    teacher, student, quality = rungs
+    assert teacher.beaten_by == () and quality.beaten_by == ()          # equal PSNR is not better
+    (beaten,) = student.beaten_by
+    assert (beaten.a, beaten.b, beaten.seeds) == ("baseline fast K=0", "senerf fast K=1", (0, 1, 2, 3))
+    assert beaten.diff.mean == pytest.approx(1.15) and beaten.measurable
+    md = "\n".join(ladder.frontier_markdown(rungs))
+    assert md.count("| none |") == 2 and "| lego | senerf fast K=1 | 4 | 80 | 18.00 ± 0.00 | baseline fast K=0 (30 s, " \
+        "1.15 ± 0.13 dB, p 0.000) |" in md
+
+
+def test_frontier_needs_enough_pairs_to_call_a_configuration_beaten():
+    records = []
+    for s in range(2):   # two pairs, the faster one far better: still too few to say
+        records += [_line(s, "fast", 20.0 + s, 30), _line(s, "quality", 15.0, 200)]
+    assert all(r.beaten_by == () for r in ladder.frontier(records)) and ladder.frontier_markdown([]) == []

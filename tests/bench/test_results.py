@@ -19,7 +19,7 @@ def _ok_outcome(n_iter=3, lpips="unavailable"):
              "seconds": 2.0 + k, "per_view": {"psnr": [1.0, 2.0], "ssim": [0.5, 0.5]}, "host": {"threads": 2}}
             for k in range(n_iter)]
     metrics = {"senerf_version": "x", "train_views": [0, 1, 51], "test_views": [0, 1], "resolution": [100, 100],
-               "iterations": rows}
+               "iterations": rows, "config": {"train": {"steps": 600, "batch_rays": 1024}}}
     return {"status": "ok", "metrics": metrics, "run_seconds": 12.5, "peak_memory_mib": 300.0, "hostname": "h",
             "fit_command": ["senerf-fit", "a"], "run_dir": "/r"}
 
@@ -32,6 +32,7 @@ def test_an_ok_run_gives_one_readable_line_per_iteration():
     assert lines[2]["psnr"] == 17.0 and lines[0]["lpips"] == "unavailable" and lines[0]["views"] == [0, 1, 51]
     assert lines[0]["commit"] == "abc-dirty" and lines[0]["bench_command"] == ["senerf-bench", "run"]
     assert lines[0]["host"] == {"threads": 2} and lines[0]["run_key"] == SPEC.key()
+    assert lines[0]["schedule"] == "600x1024"   # what the fit trained, whatever the preset means later
     numeric = result_lines(SPEC, _ok_outcome(lpips=0.25), "c", [])
     assert numeric[0]["lpips"] == 0.25 and numeric[0]["avg"] == 0.25
 
