@@ -206,8 +206,8 @@ def test_the_estimate_uses_the_results_files_own_seconds_and_counts_only_pending
     done = [ok_line(run_key=s.key(), method="senerf", seed=s.seed, iterations=1, iteration=1, run_seconds=secs)
             for s, secs in zip(specs[:2], (100.0, 120.0))]
     results.write_text("".join(json.dumps(line) + "\n" for line in done))
-    assert estimate_seconds(specs[2], {("lego", "synthetic-extreme3@100", "senerf", "fast 600x1024", 1): [100.0, 120.0]}) == \
-        (110.0, "measured")
+    measured = {("lego", "synthetic-extreme3@100", "senerf", "fast 600x1024", 1): [100.0, 120.0]}
+    assert estimate_seconds(specs[2], measured) == (110.0, "measured")
     lines = estimate_lines(specs, results, workers=2)
     assert lines[0] == "# estimate: 4 runs to run (2 already finished)"
     assert lines[1] == "#   synthetic-extreme3@100 senerf fast K=1: 1 runs x ~110 s (measured) = 2 min"
