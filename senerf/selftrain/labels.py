@@ -36,7 +36,8 @@ class PseudoLabels:
         neighbour: (P, H, W, Q*Q - 1) normalised neighbour weights.
         empty: (P, H, W) bool: reliable pixels that are empty space (teacher opacity below
             ``SelfTrainConfig.empty_opacity``; all False when it is 0).  A subset of ``weights > 0``: they are
-            distilled, and serve as the prior's neighbours, as the other reliable pixels.
+            distilled as the other reliable pixels, but are never the prior's neighbours (the prior spreads
+            surface densities).
         intrinsics: the ``Intrinsics`` the views were rendered with: one shared, or a tuple of P.
     """
 
@@ -162,7 +163,9 @@ def _labels_from_views(views: dict, pseudo_c2w: np.ndarray, intr, cfg: SelfTrain
         neighbour, has = unified_prior_weights(sims, fg, cfg.kernel_size, cfg.kernel_std)
         prior = np.where(fg & has, 1.0 - weights, 0.0).astype(np.float32)
     else:
-        neighbour, has = prior_weights(weights > 0, cfg.kernel_size, cfg.kernel_std)
+        # the prior spreads reliable *surface* densities (the paper's depth-smoothness assumption); empty-space
+        # rays are reliable too but would pull an object's edge pixels towards no density at all
+        neighbour, has = prior_weights((weights > 0) & ~empty, cfg.kernel_size, cfg.kernel_std)
         prior = (fg & has & (weights <= 0)).astype(np.float32)
     return PseudoLabels(c2w=pseudo_c2w, rgb=views["rgb"], z_depth=views["z_depth"], acc=acc,
                         similarity=sims, foreground=fg, tau=tau, weights=weights, prior=prior,

@@ -18,6 +18,7 @@ import senerf.geometry
 import senerf.selftrain.labels as labels_mod
 from senerf.config import ModelConfig, SelfTrainConfig
 from senerf.errors import InputError
+from senerf.selftrain.distill import neighbour_offsets
 from senerf.selftrain.labels import (PseudoLabels, dataset_pseudo_views, estimate_reliability, known_images,
                                      labels_text, pseudo_rays, pseudo_view_centre_problem, reliability_mask_quality,
                                      sample_pseudo_cameras, write_pseudo_pngs)
@@ -196,6 +197,32 @@ def test_adaptive_labels_threshold_on_foreground_and_prior_on_foreground_only(mo
     np.testing.assert_array_equal(labels.prior, expected_prior.astype(np.float32))
     assert any(_has_neighbour(reliable[v], y, x) for v, y, x in zip(*np.nonzero(~fg)))   # the case arises
     assert labels.reliable_fraction == pytest.approx(reliable[fg].mean())
+
+
+def test_the_prior_comes_from_reliable_surface_neighbours_never_from_empty_space(monkeypatch):
+    """Empty-space pixels are reliable (distilled as empty rays) but are no neighbours of the prior: catches an
+    object's unreliable edge pixels pulled towards the empty rays beside them (which erased mic's cable)."""
+    rng = np.random.default_rng(7)
+    sims = rng.uniform(0.0, 0.9, size=(2, 6, 7))
+    acc = np.full((2, 6, 7), 0.9)
+    acc[:, :, :2] = 0.05           # the left two columns empty space (below empty_opacity 0.2)
+    sims[0, 0:3, 2:4] = 0.0        # view 0, rows 0-2: dissimilar edge pixels, (1, 2) with no reliable surface near
+    labels = _canned_labels(monkeypatch, sims, acc, SelfTrainConfig(threshold="adaptive", empty_opacity=0.2),
+                            alpha=0.25)
+    fg, empty = acc >= 0.5, acc < 0.2
+    surface = fg & (sims > labels.tau)
+    np.testing.assert_array_equal(labels.weights, (surface | empty).astype(np.float32))
+    expected_prior = np.zeros_like(fg)
+    for v, y, x in np.ndindex(*fg.shape):
+        expected_prior[v, y, x] = fg[v, y, x] and not surface[v, y, x] and _has_neighbour(surface[v], y, x)
+    np.testing.assert_array_equal(labels.prior, expected_prior.astype(np.float32))
+    assert not surface[0, 1, 2] and labels.prior[0, 1, 2] == 0    # its reliable neighbours are all empty space
+    offsets = neighbour_offsets(3)
+    for v, y, x in zip(*np.nonzero(labels.prior)):
+        on_empty = [i for i, (dy, dx) in enumerate(offsets) if 0 <= y + dy < 6 and 0 <= x + dx < 7
+                    and empty[v, y + dy, x + dx]]
+        assert not labels.neighbour[v, y, x, on_empty].any()
+        assert labels.neighbour[v, y, x].sum() == pytest.approx(1.0)
 
 
 def test_unbounded_labels_count_every_pixel_and_label_no_empty_space(monkeypatch):
