@@ -49,7 +49,7 @@ class Paired:
 
     Attributes:
         scene, protocol: the group.
-        a, b: the configurations, ``"senerf balanced K=3"`` (method, preset label, K): the slower and the faster
+        a, b: the configurations, ``"senerf fast 600x1024 K=1"`` (method, preset label, K): the slower and the faster
             rung in the ladder, the method and the reference in a contrast.
         seeds: the seeds both have (the pairs).
         a_seconds, b_seconds: mean seconds of fitting over those seeds.
