@@ -71,8 +71,6 @@ def build_parser() -> argparse.ArgumentParser:
     rep.add_argument("--title", default="Benchmarks")
     rep.add_argument("--into", default=None, help="replace the text between the report markers of this markdown "
                                                   f"file ('{REPORT_BEGIN}' ... '{REPORT_END}')")
-    rep.add_argument("--brief", action="store_true", help="only the per-scene tables against the paper, with their "
-                                                          "provenance and the departures")
     rep.add_argument("--readme", action="store_true", help="one PSNR table over every protocol and scene, ours and "
                                                            "the paper's, under one provenance line (README's form)")
     rep.add_argument("--figures", default=None, metavar="DIR",
@@ -231,10 +229,8 @@ def _cmd_report(args: argparse.Namespace, command: list[str]) -> int:
     records = _load(args.results)
     if args.out and Path(args.out).exists() and os.path.samefile(args.out, args.results):
         raise InputError(f"is {args.results}, which this command reads; choose another --out", file=args.out)
-    if args.brief and args.readme:
-        raise InputError("choose one of --brief and --readme", field="--readme")
     text = (readme_markdown(records, command) if args.readme
-            else make_report(records, command, title=args.title, brief=args.brief))
+            else make_report(records, command, title=args.title))
     document = None
     if args.into:
         with _os_errors(args.into, "--into", "read"):

@@ -10,8 +10,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from senerf.config import PRESETS
-
 from .ladder import Paired, frontier, frontier_markdown, method_contrasts, pair_runs, paired_markdown, preset_ladder
 from .protocols import parse_protocol
 from .results import latest_ok_lines
@@ -261,12 +259,12 @@ def departures(records: list[dict]) -> list[str]:
         out.append(f"- **{protocol}**: ours {proto.size[1]}x{proto.size[0]}, the paper's "
                    + (", ".join(paper_res) if paper_res else "(it publishes no figures for this protocol)") + ".")
     for label in sorted({preset_label(r) for r in ok}):
-        line = next(r for r in ok if preset_label(r) == label)
-        preset = PRESETS.get(preset_name(label))   # a line without its schedule: the preset as defined now
-        steps, rays = (line["schedule"].split("x") if line.get("schedule") else
-                       (line.get("steps") or (preset.steps if preset else "?"), preset.batch_rays if preset else "?"))
-        ks = sorted({r["iterations"] for r in ok if preset_label(r) == label and r["method"] != "baseline"})
-        out.append(f"- **Budget, {label}**: each field {steps} steps x {rays} rays, "
+        runs = [r for r in ok if preset_label(r) == label]
+        schedule = runs[0].get("schedule")   # lines written before it was recorded: the preset of their commit
+        budget = (f"{schedule.replace('x', ' steps x ')} rays" if schedule else
+                  f"the {preset_name(label)} preset of commit(s) {', '.join(sorted({r['commit'][:7] for r in runs}))}")
+        ks = sorted({r["iterations"] for r in runs if r["method"] != "baseline"})
+        out.append(f"- **Budget, {label}**: each field {budget}, "
                    f"K = {', '.join(map(str, ks)) or '0'} self-training iteration(s), on the machines named above; "
                    "the paper trains K-Planes 20 GPU-minutes an iteration (NeRF Synthetic; 60 on LLFF) on an RTX "
                    "3090, about 4 iterations.")
@@ -282,8 +280,7 @@ def departures(records: list[dict]) -> list[str]:
     return out
 
 
-def make_report(records: list[dict], report_command: list[str], title: str = "Benchmarks",
-                brief: bool = False) -> str:
+def make_report(records: list[dict], report_command: list[str], title: str = "Benchmarks") -> str:
     """The markdown section: one block per protocol, our results beside the paper's, each block stating the
     resolutions (ours and the paper's), the commit(s), machine(s), run dates and the command(s) behind its rows;
     then :func:`departures`.
@@ -291,7 +288,6 @@ def make_report(records: list[dict], report_command: list[str], title: str = "Be
     Args:
         records: results-file lines (:func:`senerf.bench.results.load_results`).
         report_command: argv of the command generating this report (stated in the header).
-        brief: per protocol only its provenance and per-scene tables (:func:`compare_to_paper`; README's form).
     """
     ok = latest_ok_lines(records)
     now = _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
@@ -305,12 +301,12 @@ def make_report(records: list[dict], report_command: list[str], title: str = "Be
     for protocol in sorted({r["protocol"] for r in ok}):
         out += _protocol_block(protocol, [r for r in ok if r["protocol"] == protocol],
                                [a for a in aggs if a.protocol == protocol],
-                               [rows for (p, _), rows in tables.items() if p == protocol], brief)
+                               [rows for (p, _), rows in tables.items() if p == protocol])
     return "\n".join(out + departures(records) + [""])
 
 
-def _protocol_block(protocol: str, lines: list[dict], aggs: list[Aggregate], tables: list[list[SceneComparison]],
-                    brief: bool = False) -> list[str]:
+def _protocol_block(protocol: str, lines: list[dict], aggs: list[Aggregate], tables: list[list[SceneComparison]]
+                    ) -> list[str]:
     proto = parse_protocol(protocol)
     h, w = proto.size
     paper_res = {r.resolution for r in paper_rows(proto.family)} or {"none published"}
@@ -323,8 +319,6 @@ def _protocol_block(protocol: str, lines: list[dict], aggs: list[Aggregate], tab
            "- Made by:"] + [f"  `{shlex.join(c)}`" for c in sorted({tuple(r['bench_command']) for r in lines})]
     for rows in tables:
         out += [""] + comparison_markdown(rows)
-    if brief:
-        return out + [""]
     finals = final_iterations(aggs)
     paper = ["; ".join(_paper_text(r) for r in paper_rows(proto.family, a.scene, a.method)) or "-"
              for a in finals]   # published rows are "baseline", "senerf" or "peer": ablations have none

@@ -263,7 +263,7 @@ def test_suite_refuses_a_data_folder_without_scenes(tmp_path, capsys):
     assert not (tmp_path / "o").exists()
 
 
-def test_report_brief_into_a_marked_section_and_figures_per_protocol(ok_line, tmp_path, capsys):
+def test_report_into_a_marked_section_and_figures_per_protocol(ok_line, tmp_path, capsys):
     results = tmp_path / "results.jsonl"
     lines = [ok_line(run_key=f"{scene}{seed}", scene=scene, protocol=protocol, method="senerf", seed=seed,
                      iterations=1, iteration=it, psnr=15.0 + seed + it)
@@ -272,17 +272,17 @@ def test_report_brief_into_a_marked_section_and_figures_per_protocol(ok_line, tm
     results.write_text("".join(json.dumps(line) + "\n" for line in lines))
     doc = tmp_path / "README.md"
     doc.write_text(f"# senerf\n{REPORT_BEGIN}\nold\n{REPORT_END}\nrest\n")
-    assert main(["report", str(results), "--brief", "--into", str(doc), "--figures", str(tmp_path / "fig")]) == 0
+    assert main(["report", str(results), "--into", str(doc), "--figures", str(tmp_path / "fig")]) == 0
     text = doc.read_text()
     assert text.startswith(f"# senerf\n{REPORT_BEGIN}\n") and text.endswith(f"{REPORT_END}\nrest\n")
     assert "| fern | 2 | 15.50 ± 0.71 | 16.50 ± 0.71 | +1.00 ± 0.00 (p 0.000) | 18.22 -> 18.83 (+0.61) |" in text
-    assert "Final iteration" not in text and "--brief --into" in text
+    assert "Final iteration" in text and "report " + str(results) + " --into" in text
     pngs = sorted(p.name for p in (tmp_path / "fig").glob("*.png"))
     assert pngs == ["paper_llff3_at_504x378_fast_K1.png", "paper_synthetic-extreme3_at_100_fast_K1.png"]
     assert all(iio.imread(tmp_path / "fig" / p).ndim == 3 for p in pngs)
 
 
-def test_report_readme_form_replaces_the_marked_section_and_refuses_brief_with_it(ok_line, tmp_path, capsys):
+def test_report_readme_form_replaces_the_marked_section(ok_line, tmp_path):
     results = tmp_path / "results.jsonl"
     lines = [ok_line(run_key=f"fern{seed}", scene="fern", protocol="llff3@504x378", method="senerf", seed=seed,
                      iterations=1, iteration=it, psnr=15.0 + seed + it) for seed in (0, 1) for it in (0, 1)]
@@ -294,5 +294,3 @@ def test_report_readme_form_replaces_the_marked_section_and_refuses_brief_with_i
     assert "old" not in text and text.endswith(f"{REPORT_END}\nrest\n")
     assert "| llff3@504x378, fast K=1 | fern | 2 | 15.50 ± 0.71 | 16.50 ± 0.71 | +1.00 ± 0.00 (0.000) | " \
            "18.22 -> 18.83 |" in text
-    assert main(["report", str(results), "--readme", "--brief"]) == 2
-    assert "choose one of --brief and --readme" in capsys.readouterr().err
